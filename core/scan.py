@@ -1,0 +1,73 @@
+"""Plain containers for meshes and scans passed between readers, registration and writers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class RawMesh:
+    """A mesh or point cloud as read from a file, in the file's own units and axes.
+
+    Attributes
+    ----------
+    V : (n, 3) float64 vertex positions.
+    F : (m, 3) int64 triangles, or None for a point cloud.
+    normals : (n, 3) float64 unit vertex normals, or None when the file has none.
+    confidence : (n,) float64 per-vertex confidence in [0, 1], or None when the file has none.
+    colors : (n, 3) uint8 RGB, or None.
+    """
+
+    V: np.ndarray
+    F: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    colors: np.ndarray | None = None
+
+
+@dataclass
+class FrameInfo:
+    """How a file's coordinates were mapped to bodyspace's frame (metres, +Y up).
+
+    ``x_canonical = scale * R @ x_file``; ``R`` (3, 3) is a signed axis permutation.
+    """
+
+    units: str  # "m", "cm" or "mm"
+    up: str  # e.g. "+y", "+z"
+    scale: float
+    R: np.ndarray
+    detected: bool  # True when units/up were auto-detected rather than given
+
+    def to_canonical(self, X: np.ndarray) -> np.ndarray:
+        """Map (k, 3) file coordinates to canonical metres, +Y up."""
+        return self.scale * (np.asarray(X, dtype=np.float64) @ self.R.T)
+
+    def to_file(self, X: np.ndarray) -> np.ndarray:
+        """Map (k, 3) canonical coordinates back to the file's units and axes."""
+        return (np.asarray(X, dtype=np.float64) @ self.R) / self.scale
+
+
+@dataclass
+class Scan:
+    """A scan ready for registration: metres, +Y up (right-handed).
+
+    Attributes
+    ----------
+    V : (n, 3) float64 points, metres.
+    F : (m, 3) int64 triangles or None (point cloud).
+    normals : (n, 3) float64 unit normals (always present; estimated if the file had none).
+    confidence : (n,) float64 in [0, 1] (estimated if the file had none).
+    boundary : (n,) bool, True for points on a hole boundary.
+    frame : how the file's coordinates were mapped here.
+    notes : human-readable notes for the report (e.g. "confidence estimated").
+    """
+
+    V: np.ndarray
+    F: np.ndarray | None
+    normals: np.ndarray
+    confidence: np.ndarray
+    boundary: np.ndarray
+    frame: FrameInfo | None = None
+    notes: list[str] = field(default_factory=list)
