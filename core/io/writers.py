@@ -1,0 +1,320 @@
+"""Mesh writers: PLY (binary or ASCII), OBJ and binary glTF 2.0 (GLB).
+
+Coordinates are written as given (bodyspace writes metres, +Y up, which are glTF's axes, so a
+GLB needs no conversion). Every write is atomic: a temporary file in the destination folder is
+written, flushed and then renamed over the target with ``os.replace``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import struct
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputFormatError
+from core.io._geometry import normalize, vertex_normals
+
+PathLike = str | os.PathLike
+
+
+def atomic_write(path: PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temp file in the same folder, then os.replace)."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _check(V, F, normals=None, confidence=None, colors=None):
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise InputFormatError(f"V must have shape (n, 3), got {V.shape}")
+    if not np.isfinite(V).all():
+        raise InputFormatError(
+            f"V has {int((~np.isfinite(V).all(1)).sum())} non-finite vertices; cannot write"
+        )
+    n = len(V)
+    if F is not None:
+        F = np.asarray(F)
+        if F.ndim != 2 or F.shape[1] != 3:
+            raise InputFormatError(f"F must have shape (m, 3), got {F.shape}")
+        F = F.astype(np.int64)
+        if len(F) and (F.min() < 0 or F.max() >= n):
+            raise InputFormatError(
+                f"F indexes vertices {int(F.min())}..{int(F.max())} but V has {n} vertices"
+            )
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != (n, 3):
+            raise InputFormatError(f"normals must have shape ({n}, 3), got {normals.shape}")
+    if confidence is not None:
+        confidence = np.asarray(confidence, dtype=np.float64)
+        if confidence.shape != (n,):
+            raise InputFormatError(f"confidence must have shape ({n},), got {confidence.shape}")
+    if colors is not None:
+        colors = np.asarray(colors)
+        if colors.shape != (n, 3):
+            raise InputFormatError(f"colors must have shape ({n}, 3), got {colors.shape}")
+        if colors.dtype.kind == "f":
+            colors = np.round(np.clip(colors, 0, 1) * 255)
+        colors = np.clip(colors, 0, 255).astype(np.uint8)
+    return V, F, normals, confidence, colors
+
+
+def write_ply(
+    path: PathLike,
+    V: np.ndarray,
+    F: np.ndarray | None,
+    *,
+    normals: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
+    binary: bool = True,
+) -> None:
+    """Write a PLY file (binary little-endian by default, or ASCII).
+
+    Parameters
+    ----------
+    path : output file.
+    V : (n, 3) vertices (written as double).
+    F : (m, 3) triangles, or None for a point cloud.
+    normals : (n, 3) optional (float). confidence : (n,) optional (float, property
+        ``confidence``). colors : (n, 3) optional uint8 RGB (or floats in [0, 1]).
+    binary : bool, binary_little_endian when True, else ascii.
+    """
+    V, F, normals, confidence, colors = _check(V, F, normals, confidence, colors)
+    n = len(V)
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    props = ["property double x", "property double y", "property double z"]
+    if normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+        props += ["property float nx", "property float ny", "property float nz"]
+    if confidence is not None:
+        fields += [("confidence", "<f4")]
+        props += ["property float confidence"]
+    if colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+        props += ["property uchar red", "property uchar green", "property uchar blue"]
+    m = 0 if F is None else len(F)
+    header = [
+        "ply",
+        f"format {'binary_little_endian' if binary else 'ascii'} 1.0",
+        "comment bodyspace",
+        f"element vertex {n}",
+        *props,
+    ]
+    if F is not None:
+        header += [f"element face {m}", "property list uchar int vertex_indices"]
+    header.append("end_header")
+    head = ("\n".join(header) + "\n").encode("ascii")
+    vrec = np.zeros(n, dtype=fields)
+    vrec["x"], vrec["y"], vrec["z"] = V[:, 0], V[:, 1], V[:, 2]
+    if normals is not None:
+        vrec["nx"], vrec["ny"], vrec["nz"] = normals[:, 0], normals[:, 1], normals[:, 2]
+    if confidence is not None:
+        vrec["confidence"] = confidence
+    if colors is not None:
+        vrec["red"], vrec["green"], vrec["blue"] = colors[:, 0], colors[:, 1], colors[:, 2]
+    if binary:
+        parts = [head, vrec.tobytes()]
+        if F is not None:
+            frec = np.zeros(m, dtype=[("c", "u1"), ("i", "<i4", (3,))])
+            frec["c"] = 3
+            frec["i"] = F
+            parts.append(frec.tobytes())
+        atomic_write(path, b"".join(parts))
+        return
+    cols, fmts = [V], ["%.17g %.17g %.17g"]
+    if normals is not None:
+        cols.append(normals.astype(np.float32).astype(np.float64))
+        fmts.append("%.9g %.9g %.9g")
+    if confidence is not None:
+        cols.append(confidence.astype(np.float32).astype(np.float64)[:, None])
+        fmts.append("%.9g")
+    if colors is not None:
+        cols.append(colors.astype(np.float64))
+        fmts.append("%d %d %d")
+    table = np.concatenate(cols, axis=1)
+    line = " ".join(fmts) + "\n"
+    body = (line * n) % tuple(table.ravel()) if n else ""
+    if F is not None and m:
+        body += ("3 %d %d %d\n" * m) % tuple(F.ravel())
+    atomic_write(path, head + body.encode("ascii"))
+
+
+def write_obj(
+    path: PathLike, V: np.ndarray, F: np.ndarray | None, *, normals: np.ndarray | None = None
+) -> None:
+    """Write a Wavefront OBJ (``v``, optional ``vn``, ``f`` with 1-based indices).
+
+    Parameters
+    ----------
+    path : output file. V : (n, 3) vertices. F : (m, 3) triangles or None.
+    normals : (n, 3) optional per-vertex normals (faces then use ``v//vn``).
+    """
+    V, F, normals, _, _ = _check(V, F, normals)
+    n = len(V)
+    out = ["# bodyspace\n"]
+    if n:
+        out.append(("v %.17g %.17g %.17g\n" * n) % tuple(V.ravel()))
+    if normals is not None and n:
+        out.append(("vn %.9g %.9g %.9g\n" * n) % tuple(normalize(normals).ravel()))
+    if F is not None and len(F):
+        F1 = F + 1
+        if normals is not None:
+            out.append(("f %d//%d %d//%d %d//%d\n" * len(F)) % tuple(np.repeat(F1, 2, 1).ravel()))
+        else:
+            out.append(("f %d %d %d\n" * len(F)) % tuple(F1.ravel()))
+    atomic_write(path, "".join(out).encode("ascii"))
+
+
+def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
+    return b + fill * (-len(b) % 4)
+
+
+def write_glb(
+    path_or_none: PathLike | None,
+    V: np.ndarray,
+    F: np.ndarray | None,
+    *,
+    normals: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
+) -> bytes:
+    """Encode (and optionally write) a binary glTF 2.0 file with one mesh and one primitive.
+
+    Parameters
+    ----------
+    path_or_none : output file, or None to only return the bytes.
+    V : (n, 3) vertices, metres, +Y up (glTF's frame; no conversion is done).
+    F : (m, 3) triangles, or None for a point primitive.
+    normals : (n, 3) optional; computed (area-weighted) when not given; written unit length.
+    colors : (n, 3) optional uint8 RGB (or floats in [0, 1]), written as normalised RGBA bytes.
+
+    Returns
+    -------
+    bytes
+        The GLB file content.
+    """
+    V, F, normals, _, colors = _check(V, F, normals, None, colors)
+    n = len(V)
+    if n == 0:
+        raise InputFormatError("cannot write a GLB without vertices")
+    N = vertex_normals(V, F) if normals is None else normalize(normals)
+    pos = V.astype(np.float32)
+    blobs: list[bytes] = []
+    views: list[dict] = []
+    accessors: list[dict] = []
+
+    def add(data: np.ndarray, target: int, acc: dict) -> int:
+        offset = sum(len(b) for b in blobs)
+        raw = np.ascontiguousarray(data).tobytes()
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), "target": target})
+        blobs.append(_pad4(raw))
+        acc["bufferView"] = len(views) - 1
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    attrs = {
+        "POSITION": add(
+            pos,
+            34962,
+            {
+                "componentType": 5126,
+                "count": n,
+                "type": "VEC3",
+                "min": [float(v) for v in pos.min(axis=0)],
+                "max": [float(v) for v in pos.max(axis=0)],
+            },
+        ),
+        "NORMAL": add(
+            normalize(N.astype(np.float32).astype(np.float64)).astype(np.float32),
+            34962,
+            {"componentType": 5126, "count": n, "type": "VEC3"},
+        ),
+    }
+    if colors is not None:
+        rgba = np.concatenate([colors, np.full((n, 1), 255, np.uint8)], axis=1)
+        attrs["COLOR_0"] = add(
+            rgba,
+            34962,
+            {"componentType": 5121, "normalized": True, "count": n, "type": "VEC4"},
+        )
+    prim: dict = {"attributes": attrs}
+    if F is not None and len(F):
+        if n < 65535:
+            idx, ctype = F.astype(np.uint16), 5123
+        else:
+            idx, ctype = F.astype(np.uint32), 5125
+        prim["indices"] = add(
+            idx.ravel(),
+            34963,
+            {
+                "componentType": ctype,
+                "count": int(idx.size),
+                "type": "SCALAR",
+                "min": [int(idx.min())],
+                "max": [int(idx.max())],
+            },
+        )
+        prim["mode"] = 4
+    else:
+        prim["mode"] = 0
+    binary = b"".join(blobs)
+    gltf = {
+        "asset": {"version": "2.0", "generator": "bodyspace"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "body"}],
+        "meshes": [{"name": "body", "primitives": [prim]}],
+        "buffers": [{"byteLength": len(binary)}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    js = _pad4(json.dumps(gltf, separators=(",", ":")).encode("utf-8"), b" ")
+    total = 12 + 8 + len(js) + 8 + len(binary)
+    out = b"".join(
+        [
+            struct.pack("<III", 0x46546C67, 2, total),
+            struct.pack("<II", len(js), 0x4E4F534A),
+            js,
+            struct.pack("<II", len(binary), 0x004E4942),
+            binary,
+        ]
+    )
+    if path_or_none is not None:
+        atomic_write(path_or_none, out)
+    return out
+
+
+def write_mesh(path: PathLike, V: np.ndarray, F: np.ndarray | None, **kw) -> None:
+    """Write by extension: ``.ply`` (:func:`write_ply`), ``.obj`` or ``.glb``.
+
+    Keyword arguments are passed on (``normals``, ``confidence``, ``colors``, ``binary``);
+    those a format cannot store are ignored.
+    """
+    ext = Path(path).suffix.lower()
+    if ext == ".ply":
+        allowed = {"normals", "confidence", "colors", "binary"}
+        write_ply(path, V, F, **{k: v for k, v in kw.items() if k in allowed})
+    elif ext == ".obj":
+        write_obj(path, V, F, normals=kw.get("normals"))
+    elif ext == ".glb":
+        write_glb(path, V, F, normals=kw.get("normals"), colors=kw.get("colors"))
+    else:
+        raise InputFormatError(
+            f"cannot write {Path(path).name!r}: unknown extension {ext!r}; use .ply, .obj or .glb"
+        )
