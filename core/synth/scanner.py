@@ -19,7 +19,7 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.spatial import cKDTree
 
 from core.template import load_template
@@ -44,6 +44,10 @@ class ScanConfig:
     distance_m : horizontal distance of each column from the subject's vertical axis.
     noise_m : sigma of gaussian range noise along each ray.
     max_angle_deg : pixels whose surface normal is further than this from the ray are dropped.
+    triangulation_deg : angle between each head's horizontal light stripe and its two cameras
+        (one above, one below); a point is measured only where the stripe and at least one camera
+        see it, which carves the natural holes in concavities (armpits, crotch, under the chin).
+        0 disables the check.
     depth_jump : triangulation breaks where depths within a pixel triangle differ by more than
         ``depth_jump * pitch_m + 4 * noise_m``.
     edge_px : confidence ramps from 0 to 1 over this many pixels from a range-image edge.
@@ -66,6 +70,7 @@ class ScanConfig:
     noise_m: float = 0.001
     max_angle_deg: float = 78.0
     depth_jump: float = 5.0
+    triangulation_deg: float = 25.0
     edge_px: float = 4.0
     n_dropouts: tuple[int, int] = (2, 6)
     dropout_diameter_m: tuple[float, float] = (0.01, 0.04)
@@ -180,6 +185,30 @@ def _rasterize(
     return px[sel], py[sel], t[sel], bary[sel], d[sel]
 
 
+def _visible(
+    uv: np.ndarray,
+    depth: np.ndarray,
+    F: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    d: np.ndarray,
+    tol: float = 0.003,
+) -> np.ndarray:
+    """Whether surface points at pixel coords ``(u, v)`` and depth ``d`` are unoccluded.
+
+    The mesh (``uv`` (n, 2) pixel coords, ``depth`` (n,)) is z-buffered; a point is visible when
+    it is no deeper than the farthest surface in its 3x3 pixel neighbourhood plus ``tol``.
+    """
+    px, py, _, _, zd = _rasterize(uv, depth, F)
+    x0, y0 = px.min() - 2, py.min() - 2
+    img = np.full((py.max() - y0 + 3, px.max() - x0 + 3), np.inf)
+    img[py - y0, px - x0] = zd
+    far = maximum_filter(img, size=3, mode="nearest")
+    iu = np.clip(np.rint(u).astype(np.int64) - x0, 0, img.shape[1] - 1)
+    iv = np.clip(np.rint(v).astype(np.int64) - y0, 0, img.shape[0] - 1)
+    return d <= far[iv, iu] + tol
+
+
 def _scan_view(
     V: np.ndarray,
     F: np.ndarray,
@@ -215,7 +244,22 @@ def _scan_view(
     ray[:, 1] = 0.0
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     cos = -np.einsum("ij,ij->i", Nn, ray)
-    keep = cos > np.cos(np.radians(cfg.max_angle_deg))
+    cos_max = np.cos(np.radians(cfg.max_angle_deg))
+    keep = cos > cos_max
+    if cfg.triangulation_deg > 0:  # the stripe must also be seen by a camera above or below
+        t = np.tan(np.radians(cfg.triangulation_deg))
+        r_pt = np.hypot((P - c) @ f, (P - c) @ lat_ax)
+        u_pt = D * np.arctan2((P - c) @ lat_ax, (P - c) @ f) / pitch
+        seen = np.zeros(len(P), dtype=bool)
+        for sgn in (1.0, -1.0):  # camera above (looking down), camera below (looking up)
+            down = np.array([0.0, sgn * t, 0.0])
+            cam = ray - down  # (unnormalised) camera ray directions through the points
+            ok = -np.einsum("ij,ij->i", Nn, cam) > cos_max * np.linalg.norm(cam, axis=1)
+            Fc = F[np.einsum("ij,ij->i", fn, cen / np.linalg.norm(cen, axis=1)[:, None] - down) < 0]
+            v_cam = (V[:, 1] + sgn * t * rng_h) / pitch
+            v_pt = (P[:, 1] + sgn * t * r_pt) / pitch
+            seen |= ok & _visible(np.stack([uv[:, 0], v_cam], 1), rng_h, Fc, u_pt, v_pt, r_pt)
+        keep &= seen
     px, py, P, ray, cos = px[keep], py[keep], P[keep], ray[keep], cos[keep]
     if len(P) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), np.zeros((0, 3))
