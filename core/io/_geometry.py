@@ -7,10 +7,22 @@ import numpy as np
 
 def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted face normals (cross products, length = 2 * area), shape (m, 3)."""
-    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    a = V[F[:, 0]]
+    b = V[F[:, 1]] - a
+    c = V[F[:, 2]] - a
+    out = np.empty_like(b)
+    out[:, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
+    out[:, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
+    out[:, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
+    return out
 
 
-def vertex_normals(V: np.ndarray, F: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np.ndarray:
+def vertex_normals(
+    V: np.ndarray,
+    F: np.ndarray | None,
+    fallback=(0.0, 1.0, 0.0),
+    face_normals: np.ndarray | None = None,
+) -> np.ndarray:
     """Area-weighted unit vertex normals, (n, 3) float64.
 
     Vertices with no incident area get ``fallback``.
@@ -19,7 +31,7 @@ def vertex_normals(V: np.ndarray, F: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np
     n = len(V)
     N = np.zeros((n, 3))
     if F is not None and len(F):
-        fn = face_normals(V, F)
+        fn = _face_normals(V, F) if face_normals is None else face_normals
         idx = F.ravel()
         for c in range(3):
             N[:, c] = np.bincount(idx, weights=np.repeat(fn[:, c], 3), minlength=n)
@@ -44,3 +56,6 @@ def edge_use_counts(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     key = E[:, 0] * n + E[:, 1]
     uk, counts = np.unique(key, return_counts=True)
     return np.stack([uk // n, uk % n], axis=1), counts
+
+
+_face_normals = face_normals

@@ -1,0 +1,213 @@
+"""Units and up-axis of a scan: detection and mapping to bodyspace's frame.
+
+Canonical frame: metres, right-handed, +Y up, +Z the subject's front, +X the subject's left.
+``x_canonical = scale * R @ x_file``, ``R`` a proper rotation (det +1) that is a signed axis
+permutation. Only the up axis is mapped; the facing direction about the vertical is left to the
+registration's rigid alignment, and no translation is applied.
+
+Auto-detection rules
+--------------------
+- **Up**: with head and foot markers, the signed file axis closest to the foot -> head
+  direction. Otherwise the axis of largest extent, if it is at least 1.15x the other two; its
+  sign is taken as **positive** (a file's up axis is assumed to point up, as every scanner
+  we know writes it). Pass ``up="-y"`` etc. for upside-down files.
+- **Units**: the body's height (robust extent along the up axis): 1.0-2.3 -> m, 100-230 -> cm,
+  1000-2300 -> mm; anything else is a :class:`UnitsError` naming the ``units=`` option.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from core.errors import UnitsError
+from core.scan import FrameInfo, RawMesh
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+UPS = ("+x", "-x", "+y", "-y", "+z", "-z")
+HEIGHT_RANGES = {"m": (1.0, 2.3), "cm": (100.0, 230.0), "mm": (1000.0, 2300.0)}
+DOMINANCE = 1.15
+
+HEAD_MARKERS = (
+    "Vertex",
+    "Sellion",
+    "Menton",
+    "Cervicale",
+    "Glabella",
+    "Opisthocranion",
+    "Pronasale",
+    "Supramenton",
+    "Tragion_L",
+    "Tragion_R",
+    "Infraorbitale_L",
+    "Infraorbitale_R",
+)
+FOOT_MARKERS = (
+    "Calcaneus_posterior_L",
+    "Calcaneus_posterior_R",
+    "Toe_tip_L",
+    "Toe_tip_R",
+    "Lateral_malleolus_L",
+    "Lateral_malleolus_R",
+    "Medial_malleolus_L",
+    "Medial_malleolus_R",
+    "MTP_I_L",
+    "MTP_I_R",
+    "MTP_V_L",
+    "MTP_V_R",
+)
+
+_OPTIONS = (
+    'pass units="m", "cm" or "mm" and up="+x", "-x", "+y", "-y", "+z" or "-z" '
+    "(CLI: --units / --up) to say how the file is stored"
+)
+
+
+def rotation_for_up(up: str) -> np.ndarray:
+    """The proper rotation (3, 3) mapping the file's ``up`` axis to canonical +Y.
+
+    ``+y`` is the identity; ``+z`` is the usual Z-up -> Y-up map ``(x, y, z) -> (x, z, -y)``.
+    """
+    up = up.lower()
+    R = {
+        "+y": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "-y": [[1, 0, 0], [0, -1, 0], [0, 0, -1]],  # 180 deg about X
+        "+z": [[1, 0, 0], [0, 0, 1], [0, -1, 0]],  # -90 deg about X
+        "-z": [[1, 0, 0], [0, 0, -1], [0, 1, 0]],  # +90 deg about X
+        "+x": [[0, -1, 0], [1, 0, 0], [0, 0, 1]],  # +90 deg about Z
+        "-x": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]],  # -90 deg about Z
+    }.get(up)
+    if R is None:
+        raise UnitsError(f"unknown up axis {up!r}; use one of {', '.join(UPS)} or 'auto'", up=up)
+    return np.array(R, dtype=np.float64)
+
+
+def _robust_extent(V: np.ndarray) -> np.ndarray:
+    """Per-axis extent (3,) ignoring the 0.1 % most extreme points at each end."""
+    if len(V) >= 1000:
+        lo, hi = np.quantile(V, [0.001, 0.999], axis=0)
+    else:
+        lo, hi = V.min(axis=0), V.max(axis=0)
+    return hi - lo
+
+
+def _up_from_markers(markers: Mapping[str, np.ndarray]) -> str | None:
+    head = [np.asarray(markers[k], float) for k in HEAD_MARKERS if k in markers]
+    foot = [np.asarray(markers[k], float) for k in FOOT_MARKERS if k in markers]
+    if not head or not foot:
+        return None
+    d = np.mean(head, axis=0) - np.mean(foot, axis=0)
+    L = float(np.linalg.norm(d))
+    if not np.isfinite(L) or L == 0:
+        return None
+    a = int(np.argmax(np.abs(d)))
+    if abs(d[a]) / L < 0.7:
+        raise UnitsError(
+            "the foot-to-head direction of the markers is not close to any file axis "
+            f"(direction {np.round(d / L, 2).tolist()}); the body is tilted: {_OPTIONS}",
+            direction=(d / L).tolist(),
+        )
+    return ("+" if d[a] > 0 else "-") + "xyz"[a]
+
+
+def _up_from_extent(ext: np.ndarray) -> str:
+    order = np.argsort(ext)[::-1]
+    a, b = int(order[0]), int(order[1])
+    if ext[b] <= 0 or ext[a] < DOMINANCE * ext[b]:
+        raise UnitsError(
+            "cannot tell which axis is up: the scan's extents "
+            f"(x {ext[0]:.4g}, y {ext[1]:.4g}, z {ext[2]:.4g}) have no clearly largest axis "
+            f"(need >= {DOMINANCE}x the others); give markers with head and foot landmarks, or "
+            f"{_OPTIONS}",
+            extents=ext.tolist(),
+        )
+    return "+" + "xyz"[a]
+
+
+def _units_from_height(h: float, up: str) -> str:
+    for u, (lo, hi) in HEIGHT_RANGES.items():
+        if lo <= h <= hi:
+            return u
+    raise UnitsError(
+        f"cannot tell the units: the body is {h:.4g} units tall along {up}, which is not a "
+        "standing adult in metres (1.0-2.3), centimetres (100-230) or millimetres (1000-2300); "
+        f"{_OPTIONS}",
+        height=h,
+        up=up,
+    )
+
+
+def detect_frame(
+    V: np.ndarray,
+    *,
+    units: str = "auto",
+    up: str = "auto",
+    markers: Mapping[str, np.ndarray] | None = None,
+) -> FrameInfo:
+    """Work out how to map a scan's coordinates to metres, +Y up.
+
+    Parameters
+    ----------
+    V : (n, 3) vertex positions in the file's units and axes.
+    units : {"auto", "m", "cm", "mm"}
+    up : {"auto", "+x", "-x", "+y", "-y", "+z", "-z"}
+    markers : name -> (3,) positions in the file's frame; head and foot landmarks decide the
+        up axis when ``up="auto"``.
+
+    Returns
+    -------
+    FrameInfo
+        ``scale`` (canonical metres per file unit), ``R`` (3, 3) proper rotation, ``detected``
+        True when units or up were auto-detected.
+
+    Raises
+    ------
+    UnitsError
+        Unknown options, an ambiguous up axis, or a height that fits no unit.
+    """
+    units = str(units).lower()
+    up = str(up).lower()
+    if units not in ("auto", *UNITS):
+        raise UnitsError(f"unknown units {units!r}; use 'auto', 'm', 'cm' or 'mm'", units=units)
+    if up not in ("auto", *UPS):
+        raise UnitsError(f"unknown up axis {up!r}; use 'auto' or one of {', '.join(UPS)}", up=up)
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise UnitsError(f"V must be a non-empty (n, 3) array, got shape {V.shape}")
+    finite = np.isfinite(V).all(axis=1)
+    if not finite.all():
+        V = V[finite]
+    ext = _robust_extent(V)
+    if up == "auto":
+        up_found = _up_from_markers(markers) if markers else None
+        if up_found is None:
+            up_found = _up_from_extent(ext)
+    else:
+        up_found = up
+    axis = "xyz".index(up_found[1])
+    h = float(ext[axis])
+    units_found = _units_from_height(h, up_found) if units == "auto" else units
+    return FrameInfo(
+        units=units_found,
+        up=up_found,
+        scale=UNITS[units_found],
+        R=rotation_for_up(up_found),
+        detected=(units == "auto" or up == "auto"),
+    )
+
+
+def apply_frame(raw: RawMesh, frame: FrameInfo) -> RawMesh:
+    """Map a raw mesh to the canonical frame (positions scaled and rotated, normals rotated).
+
+    Returns a new :class:`RawMesh`; faces, confidence and colours are carried over (the
+    rotation is proper, so triangle winding keeps its meaning).
+    """
+    normals = None if raw.normals is None else np.asarray(raw.normals, float) @ frame.R.T
+    return RawMesh(
+        V=frame.to_canonical(raw.V),
+        F=raw.F,
+        normals=normals,
+        confidence=raw.confidence,
+        colors=raw.colors,
+    )

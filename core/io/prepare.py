@@ -1,0 +1,340 @@
+"""Turn a raw scan into a :class:`core.scan.Scan` ready for registration.
+
+Steps (all vectorised): map to the canonical frame (metres, +Y up); clean (weld exactly
+coincident vertices, drop degenerate and duplicate triangles and unreferenced vertices, drop
+duplicate points of a cloud); normals (from the file, else area-weighted for meshes or PCA of
+the k nearest neighbours for clouds, oriented outward); boundary flags; confidence (from the
+file, else estimated from the distance to the nearest boundary and isolation).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from core.errors import InputFormatError
+from core.io._geometry import edge_use_counts, face_normals, normalize, vertex_normals
+from core.io.frame import apply_frame, detect_frame
+from core.io.markers import read_markers
+from core.io.readers import read_mesh
+from core.scan import FrameInfo, RawMesh, Scan
+
+K_NEIGHBOURS = 10  # PCA normals and orientation
+K_BOUNDARY = 20  # boundary test (larger: robust to random sampling)
+BOUNDARY_OFFSET = 0.35  # tangent centroid offset / neighbourhood radius marking a cloud boundary
+CONF_MIN = 0.2  # estimated confidence on a boundary and for isolated points
+CONF_RAMP_MIN = 0.005  # m; the confidence ramp is max(this, 3 x median spacing) wide
+
+
+def _unique_rows(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exactly equal rows -> (index of each unique row's first occurrence, in order; inverse).
+
+    Hashes each row to one uint64 and sorts once (several times faster than ``np.unique`` on
+    rows); a hash collision is detected and falls back to the exact row sort.
+    """
+    Xc = np.ascontiguousarray(X + 0 if X.dtype.kind == "f" else X)  # -0.0 -> +0.0
+    n = len(Xc)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    u = Xc.view(np.uint64) if Xc.dtype.itemsize == 8 else Xc.astype(np.int64).view(np.uint64)
+    h = np.zeros(n, np.uint64)
+    for j in range(u.shape[1]):
+        h = (h ^ u[:, j]) * np.uint64(0x9E3779B97F4A7C15)
+        h ^= h >> np.uint64(29)
+    order = np.argsort(h)
+    hs = h[order]
+    start = np.concatenate([[True], hs[1:] != hs[:-1]])
+    if start.all():  # no duplicates: the common case
+        idx = np.arange(n)
+        return idx, idx
+    gid = np.cumsum(start) - 1
+    first = np.minimum.reduceat(order, np.flatnonzero(start))
+    if not np.array_equal(Xc[order], Xc[first[gid]]):  # hash collision: exact fallback
+        void = Xc.view(np.dtype((np.void, Xc.dtype.itemsize * Xc.shape[1]))).ravel()
+        _, first, inv = np.unique(void, return_index=True, return_inverse=True)
+        gid_of = inv.ravel()
+    else:
+        gid_of = np.empty(n, np.int64)
+        gid_of[order] = gid
+    rk = np.argsort(first, kind="stable")
+    rank = np.empty_like(rk)
+    rank[rk] = np.arange(len(rk))
+    return first[rk], rank[gid_of]
+
+
+def _take(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
+    return None if a is None else a[idx]
+
+
+def _clean_mesh(raw: RawMesh, notes: list[str]) -> RawMesh:
+    V, F = raw.V, raw.F
+    first, inv = _unique_rows(V)
+    if len(first) < len(V):
+        notes.append(f"welded {len(V) - len(first):,} duplicate vertices")
+    F = inv[F]
+    V = V[first]
+    keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])
+    if not keep.all():
+        notes.append(f"dropped {int((~keep).sum()):,} degenerate triangles")
+    F = F[keep]
+    if len(F):
+        Fs = np.sort(F, axis=1)
+        fi, _ = _unique_rows(Fs)
+        if len(fi) < len(F):
+            notes.append(f"dropped {len(F) - len(fi):,} duplicate triangles")
+            F = F[np.sort(fi)]
+    used = np.zeros(len(V), bool)
+    used[F.ravel()] = True
+    if not used.all():
+        notes.append(f"dropped {int((~used).sum()):,} vertices not used by any triangle")
+    new = np.cumsum(used) - 1
+    sel = first[used]
+    return RawMesh(
+        V=V[used],
+        F=new[F] if len(F) else None,
+        normals=_take(raw.normals, sel),
+        confidence=_take(raw.confidence, sel),
+        colors=_take(raw.colors, sel),
+    )
+
+
+def _clean_cloud(raw: RawMesh, notes: list[str]) -> RawMesh:
+    first, _ = _unique_rows(raw.V)
+    if len(first) == len(raw.V):
+        return raw
+    notes.append(f"dropped {len(raw.V) - len(first):,} duplicate points")
+    return RawMesh(
+        V=raw.V[first],
+        F=None,
+        normals=_take(raw.normals, first),
+        confidence=_take(raw.confidence, first),
+        colors=_take(raw.colors, first),
+    )
+
+
+def _radial(V: np.ndarray, slab: float = 0.05) -> np.ndarray:
+    """Unit horizontal directions (n, 3) from the body's central vertical axis to each point.
+
+    The axis passes through the centre of each horizontal slab's x/z bounding box (slabs
+    ``slab`` metres thick), so a dense face or forward-pointing feet do not bias it.
+    """
+    b = np.floor((V[:, 1] - V[:, 1].min()) / slab).astype(np.int64)
+    nb = int(b.max()) + 1
+    lo = np.full((nb, 2), np.inf)
+    hi = np.full((nb, 2), -np.inf)
+    xz = V[:, [0, 2]]
+    for j in range(2):
+        np.minimum.at(lo[:, j], b, xz[:, j])
+        np.maximum.at(hi[:, j], b, xz[:, j])
+    centre = (lo + hi) / 2.0
+    r = np.zeros_like(V)
+    r[:, [0, 2]] = xz - centre[b]
+    return normalize(r, fallback=(0.0, 0.0, 0.0))
+
+
+def _pca_normals(V: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """PCA normals (n, 3) of the k-neighbourhoods and surface variation (n,) in [0, 1/3]."""
+    P = V[nbr]  # (n, k, 3)
+    P -= P.mean(axis=1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", P, P)
+    vals, vecs = np.linalg.eigh(C)
+    var = vals[:, 0] / np.maximum(vals.sum(axis=1), 1e-300)
+    return vecs[:, :, 0], np.clip(var, 0.0, 1.0)
+
+
+def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Orient PCA normals consistently (Hoppe-style propagation over a minimum spanning tree).
+
+    Edge cost: non-parallel normals, displacement along the normals (edges across thin parts)
+    and noisy neighbourhoods are expensive. Tree edges costlier than ``0.5`` are cut; each
+    remaining piece is turned so that its normals point away from the body's vertical axis on
+    (weighted) average.
+    """
+    n, k = nbr.shape
+    rows = np.repeat(np.arange(n), k - 1)
+    cols = nbr[:, 1:].ravel()
+    dots = np.einsum("ij,ij->i", N[rows], N[cols])
+    D = normalize(V[cols] - V[rows], fallback=(0.0, 0.0, 0.0))
+    across = np.abs(np.einsum("ij,ij->i", N[rows], D)) + np.abs(np.einsum("ij,ij->i", N[cols], D))
+    w = 1.0 - np.abs(dots) + 0.5 * across + 3.0 * (var[rows] + var[cols]) + 1e-6
+    G = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
+    G = G.maximum(G.T)
+    T = csgraph.minimum_spanning_tree(G).tocoo()
+    # one tree: a virtual node n joined to the first point of every connected part
+    _, label = csgraph.connected_components(G, directed=False)
+    roots = np.unique(label, return_index=True)[1]
+    r = np.concatenate([T.row, np.full(len(roots), n)])
+    c = np.concatenate([T.col, roots])
+    U = sparse.coo_matrix((np.ones(len(r)), (r, c)), shape=(n + 1, n + 1)).tocsr()
+    order, pred = csgraph.breadth_first_order(U, n, directed=False)
+    parent = np.arange(n)
+    sel = (order < n) & (pred[order] >= 0) & (pred[order] < n)
+    parent[order[sel]] = pred[order[sel]]
+    sign = np.where(np.einsum("ij,ij->i", N, N[parent]) < 0, -1.0, 1.0)
+    sign[parent == np.arange(n)] = 1.0
+    par = parent
+    for _ in range(64):  # pointer jumping: sign = product of relative signs up to the root
+        if np.all(par[par] == par):
+            break
+        sign = sign * sign[par]
+        par = par[par]
+    N = N * sign[:, None]
+    keep = T.data <= 0.5
+    pieces = sparse.coo_matrix((np.ones(int(keep.sum())), (T.row[keep], T.col[keep])), (n, n))
+    npieces, plabel = csgraph.connected_components(pieces, directed=False)
+    score = np.bincount(plabel, weights=np.einsum("ij,ij->i", N, _radial(V)), minlength=npieces)
+    return np.where((score < 0)[plabel][:, None], -N, N)
+
+
+def _cloud_boundary(V: np.ndarray, N: np.ndarray, nbr: np.ndarray, dist: np.ndarray):
+    off = V[nbr[:, 1:]].mean(axis=1) - V
+    off -= np.einsum("ij,ij->i", off, N)[:, None] * N
+    radius = dist[:, -1]
+    return np.linalg.norm(off, axis=1) > BOUNDARY_OFFSET * np.maximum(radius, 1e-12)
+
+
+def _estimate_confidence(
+    V: np.ndarray, boundary: np.ndarray, spacing: float, isolated: np.ndarray
+) -> np.ndarray:
+    ramp = max(CONF_RAMP_MIN, 3.0 * spacing)
+    conf = np.ones(len(V))
+    if boundary.any():
+        d, _ = cKDTree(V[boundary]).query(V, k=1, distance_upper_bound=ramp, workers=-1)
+        conf = CONF_MIN + (1.0 - CONF_MIN) * np.clip(d / ramp, 0.0, 1.0)
+    conf[isolated] = CONF_MIN
+    return conf
+
+
+def prepare_scan(raw: RawMesh, frame: FrameInfo) -> Scan:
+    """Map a raw scan to the canonical frame and complete it for registration.
+
+    Parameters
+    ----------
+    raw : RawMesh in the file's units and axes (from :func:`core.io.readers.read_mesh`).
+    frame : FrameInfo from :func:`core.io.frame.detect_frame`.
+
+    Returns
+    -------
+    Scan
+        Metres, +Y up; ``normals`` (n, 3) unit and outward, ``confidence`` (n,) in [0, 1],
+        ``boundary`` (n,) bool; ``notes`` say what was cleaned, estimated or flipped.
+    """
+    notes: list[str] = []
+    m = apply_frame(raw, frame)
+    if m.F is not None and len(m.F):
+        m = _clean_mesh(m, notes)
+    if m.F is None or len(m.F) == 0:
+        m = _clean_cloud(RawMesh(m.V, None, m.normals, m.confidence, m.colors), notes)
+    V = m.V
+    n = len(V)
+    F = m.F
+    isolated = np.zeros(n, bool)
+    if F is not None:
+        # outward winding: area-weighted face normals should point away from the vertical axis
+        fn = face_normals(V, F)
+        centres = (V[F[:, 0]] + V[F[:, 1]] + V[F[:, 2]]) / 3.0
+        if np.einsum("ij,ij->", fn, _radial(centres)) < 0:
+            F = F[:, [0, 2, 1]]
+            fn = -fn
+            notes.append("triangles were wound inward; flipped all to face outward")
+        vn = vertex_normals(V, F, face_normals=fn)
+        E, counts = edge_use_counts(F, n)
+        boundary = np.zeros(n, bool)
+        boundary[E[counts != 2].ravel()] = True
+        el = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+        spacing = float(np.median(el)) if len(el) else 0.0
+        A = sparse.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
+        ncomp, label = csgraph.connected_components(A, directed=False)
+        if ncomp > 1:
+            size = np.bincount(label)
+            isolated = size[label] < max(10, 0.001 * n)
+        nbr = dist = None
+    else:
+        k = min(K_BOUNDARY, n)
+        if n < 4:
+            raise InputFormatError(f"the scan has only {n} distinct points; a body needs many more")
+        tree = cKDTree(V)
+        dist, nbr = tree.query(V, k=k, workers=-1)
+        kn = min(K_NEIGHBOURS, n)
+        pn, var = _pca_normals(V, nbr[:, :kn])
+        vn = _orient_cloud(pn, var, nbr[:, :kn], V)
+        spacing = float(np.median(dist[:, 1]))
+        isolated = dist[:, -1] > 5.0 * max(float(np.median(dist[:, -1])), 1e-12)
+    if m.normals is not None:
+        N = m.normals
+        ok = np.linalg.norm(N, axis=1) > 1e-12
+        N = np.where(ok[:, None], N, vn)
+        N = normalize(N)
+        if np.einsum("ij,ij->", N, _radial(V)) < 0:
+            N = -N
+            notes.append("normals from the file pointed inward; flipped all")
+        notes.append("normals from file")
+    else:
+        N = vn
+        notes.append("normals computed" if F is not None else "normals estimated (PCA)")
+    if F is None:
+        # boundary test needs oriented tangent planes only; recompute with final normals
+        boundary = _cloud_boundary(V, N, nbr, dist)
+    if m.confidence is not None:
+        conf = np.clip(np.asarray(m.confidence, float), 0.0, 1.0)
+        notes.append("confidence from file")
+    else:
+        conf = _estimate_confidence(V, boundary, spacing, isolated)
+        notes.append("confidence estimated")
+    if isolated.any():
+        notes.append(f"{int(isolated.sum()):,} isolated points")
+    return Scan(
+        V=V,
+        F=None if F is None else F.astype(np.int64),
+        normals=N,
+        confidence=conf,
+        boundary=boundary,
+        frame=frame,
+        notes=notes,
+    )
+
+
+def load_scan(
+    path: str | os.PathLike | bytes,
+    *,
+    units: str = "auto",
+    up: str = "auto",
+    markers_path: str | os.PathLike | bytes | None = None,
+    fmt: str | None = None,
+    max_vertices: int = 5_000_000,
+    max_faces: int = 10_000_000,
+) -> tuple[Scan, dict[str, np.ndarray] | None]:
+    """Read a scan (and optional markers) and prepare it for registration.
+
+    Parameters
+    ----------
+    path : scan file (or its bytes, then give ``fmt``).
+    units : {"auto", "m", "cm", "mm"}; up : {"auto", "+x", "-x", "+y", "-y", "+z", "-z"}.
+    markers_path : optional marker file (CSV/JSON) in the scan file's units and axes.
+    fmt : scan format, by default from the extension or content.
+
+    Returns
+    -------
+    (Scan, markers)
+        The prepared scan (metres, +Y up) and the markers mapped with the same frame
+        (name -> (3,) metres), or None when no marker file was given.
+    """
+    from core.template import load_template
+
+    raw = read_mesh(path, fmt, max_vertices=max_vertices, max_faces=max_faces)
+    markers = None
+    if markers_path is not None:
+        markers = read_markers(markers_path, valid_names=load_template().landmarks)
+    frame = detect_frame(raw.V, units=units, up=up, markers=markers)
+    scan = prepare_scan(raw, frame)
+    how_u = "detected" if units == "auto" else "given"
+    how_up = "detected" if up == "auto" else "given"
+    scan.notes.insert(0, f"units {frame.units} ({how_u}), up axis {frame.up} ({how_up})")
+    mapped = None
+    if markers is not None:
+        mapped = {k: frame.to_canonical(np.asarray(v)[None, :])[0] for k, v in markers.items()}
+    return scan, mapped
