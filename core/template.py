@@ -1,18 +1,21 @@
 """The template body: MakeHuman base mesh (CC0), in metres, +Y up, +Z front, +X left, floor y=0.
 
-Loaded once from ``core/assets/template.npz`` (made by ``core/assets/build.py``) and cached.
+Loaded once from ``core/assets/template.npz`` (made by ``core/assets/build.py``; see
+``core/assets/PROVENANCE.md``) and cached.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property
 from pathlib import Path
 
 import numpy as np
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
+
+MASK_NAMES = ("ears", "fingers", "toes", "eyes_mouth", "bad_scan")
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,92 @@ class Template:
     @property
     def n_vertices(self) -> int:
         return len(self.V)
+
+    def _extra(self, key: str) -> np.ndarray:
+        try:
+            return self.extras[key]
+        except KeyError:
+            raise KeyError(
+                f"template asset has no {key!r}; rebuild it with `python -m core.assets.build`"
+            ) from None
+
+    # ------------------------------------------------------------------ symmetry, parts, masks
+
+    @property
+    def mirror(self) -> np.ndarray:
+        """(13380,) int32: index of each vertex's left/right mirror vertex (itself on the midline).
+
+        ``V[mirror] * [-1, 1, 1]`` reproduces ``V`` (the template is exactly symmetric in x).
+        """
+        return self._extra("mirror")
+
+    @property
+    def part(self) -> np.ndarray:
+        """(13380,) int8 body-part label of each vertex, an index into :attr:`part_names`."""
+        return self._extra("part")
+
+    @cached_property
+    def part_names(self) -> tuple[str, ...]:
+        """Names of the coarse body parts (``_L`` = subject's left = +X)."""
+        return tuple(str(n) for n in self._extra("part_names"))
+
+    def part_mask(self, name: str) -> np.ndarray:
+        """(13380,) bool: vertices of the body part ``name`` (one of :attr:`part_names`)."""
+        if name not in self.part_names:
+            raise ValueError(f"unknown body part {name!r}; valid: {', '.join(self.part_names)}")
+        return self.part == self.part_names.index(name)
+
+    def mask(self, name: str) -> np.ndarray:
+        """(13380,) bool region mask: one of ``ears``, ``fingers``, ``toes``, ``eyes_mouth``,
+        ``bad_scan`` (their union: regions that scanners capture badly)."""
+        if name not in MASK_NAMES:
+            raise ValueError(f"unknown mask {name!r}; valid: {', '.join(MASK_NAMES)}")
+        return self._extra(f"mask_{name}")
+
+    @property
+    def bad_scan_mask(self) -> np.ndarray:
+        """(13380,) bool: ears, fingers, toes, eye sockets and mouth (poorly scanned regions)."""
+        return self._extra("mask_bad_scan")
+
+    # ------------------------------------------------------------------ topology and geometry
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(E, 2) int64 unique undirected edges of the triangle mesh, ``i < j``, sorted."""
+        F = np.asarray(self.F, dtype=np.int64)
+        E = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+        E = np.unique(np.sort(E, axis=1), axis=0)
+        E.setflags(write=False)
+        return E
+
+    def vertex_normals(self, V: np.ndarray | None = None) -> np.ndarray:
+        """Area-weighted unit vertex normals of the template or of any body in template order.
+
+        Parameters
+        ----------
+        V : (13380, 3) float vertices in metres; default the template's own.
+
+        Returns
+        -------
+        (13380, 3) float64 unit normals (outward for the template's winding).
+        """
+        V = self.V if V is None else np.asarray(V, dtype=np.float64)
+        if V.shape != self.V.shape:
+            raise ValueError(f"V must have shape {self.V.shape}, got {V.shape}")
+        F = self.F
+        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # 2 x area
+        N = np.zeros_like(V)
+        for k in range(3):
+            np.add.at(N, F[:, k], fn)
+        n = np.linalg.norm(N, axis=1, keepdims=True)
+        return N / np.maximum(n, 1e-300)
+
+    # ------------------------------------------------------------------ rig
+
+    @cached_property
+    def joint_names(self) -> tuple[str, ...]:
+        """Bone names of the MakeHuman standard rig, parents before children."""
+        return tuple(str(n) for n in self._extra("joint_names"))
 
 
 @cache
