@@ -1069,8 +1069,11 @@ def inspect_mesh_header(
                 for p in e.props:
                     if p.count_type is None:
                         need += e.count * np.dtype(p.type).itemsize
-                    else:
-                        need += e.count * np.dtype(p.count_type).itemsize
+                    else:  # a polygon has at least 3 corners; other lists may be empty
+                        k = 3 if p.name in ("vertex_indices", "vertex_index") else 0
+                        need += e.count * (
+                            np.dtype(p.count_type).itemsize + k * np.dtype(p.type).itemsize
+                        )
             if off + need > size:
                 raise InputFormatError(
                     f"{what}: binary PLY header promises at least {off + need:,} bytes but the "

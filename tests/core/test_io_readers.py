@@ -1,0 +1,338 @@
+"""Mesh readers: every format, every bad input the product must handle."""
+
+from __future__ import annotations
+
+import io
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from core.errors import InputFormatError
+from core.io.readers import inspect_mesh_header, read_mesh
+from core.template import load_template
+
+
+@pytest.fixture(scope="module")
+def tpl():
+    t = load_template()
+    return np.array(t.V), np.array(t.F, dtype=np.int64)
+
+
+def ply_bytes(V, F=None, *, fmt="binary_little_endian", extra=None, face_type="int"):
+    """A minimal PLY writer for fixtures (independent of core.io.writers)."""
+    n = len(V)
+    end = ">" if fmt == "binary_big_endian" else "<"
+    fields = [("x", end + "f4"), ("y", end + "f4"), ("z", end + "f4")]
+    extra = extra or {}
+    for name, arr in extra.items():
+        fields.append((name, end + ("f4" if arr.dtype.kind == "f" else "u1")))
+    h = [f"ply\nformat {fmt} 1.0\nelement vertex {n}"]
+    for name, t in fields:
+        h.append(f"property {'float' if t[1:] == 'f4' else 'uchar'} {name}")
+    if F is not None:
+        h.append(f"element face {len(F)}\nproperty list uchar {face_type} vertex_indices")
+    h.append("end_header\n")
+    head = "\n".join(h).encode()
+    rec = np.zeros(n, dtype=fields)
+    rec["x"], rec["y"], rec["z"] = V.T
+    for name, arr in extra.items():
+        rec[name] = arr
+    if fmt == "ascii":
+        lines = [
+            " ".join(repr(float(v)) if isinstance(v, np.floating) else str(v) for v in r)
+            for r in rec.tolist()
+        ]
+        if F is not None:
+            lines += [" ".join(map(str, [len(f), *f])) for f in F]
+        return head + ("\n".join(lines) + "\n").encode()
+    body = rec.tobytes()
+    if F is not None:
+        it = {"int": "i4", "uint": "u4", "short": "i2"}[face_type]
+        fr = np.zeros(len(F), dtype=[("c", "u1"), ("i", end + it, (3,))])
+        fr["c"] = 3
+        fr["i"] = F
+        body += fr.tobytes()
+    return head + body
+
+
+SQUARE_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1]], float)
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_formats_roundtrip(tpl, fmt):
+    V, F = tpl
+    r = read_mesh(ply_bytes(V, F, fmt=fmt), "ply")
+    np.testing.assert_allclose(r.V, V.astype(np.float32), atol=1e-7)
+    np.testing.assert_array_equal(r.F, F)
+    assert r.F.dtype == np.int64 and r.V.dtype == np.float64
+
+
+def test_ply_from_path_with_normals_confidence_colors(tmp_path, tpl):
+    V, F = tpl
+    n = len(V)
+    N = np.tile([0.0, 0.0, 1.0], (n, 1)).astype(np.float32)
+    c = np.linspace(0, 1, n).astype(np.float32)
+    rgb = np.random.default_rng(0).integers(0, 256, (n, 3)).astype(np.uint8)
+    extra = {
+        "nx": N[:, 0],
+        "ny": N[:, 1],
+        "nz": N[:, 2],
+        "quality": c,
+        "red": rgb[:, 0],
+        "green": rgb[:, 1],
+        "blue": rgb[:, 2],
+    }
+    p = tmp_path / "scan.ply"
+    p.write_bytes(ply_bytes(V, F, extra=extra))
+    r = read_mesh(p)
+    np.testing.assert_allclose(r.normals, N)
+    np.testing.assert_allclose(r.confidence, c, atol=1e-7)
+    np.testing.assert_array_equal(r.colors, rgb)
+
+
+def test_ply_polygons_fan_triangulated_and_unknown_elements_skipped():
+    # quad + pentagon, an unknown element with a list between vertex and face, binary
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], "<f4")
+    head = (
+        b"ply\nformat binary_little_endian 1.0\ncomment test\n"
+        b"element vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+        b"element junk 2\nproperty short a\nproperty list uchar float vals\n"
+        b"element face 3\nproperty list uchar uint vertex_index\nproperty uchar flags\n"
+        b"end_header\n"
+    )
+    junk = (
+        np.array([7], "<i2").tobytes()
+        + bytes([2])
+        + np.array([1, 2], "<f4").tobytes()
+        + np.array([8], "<i2").tobytes()
+        + bytes([0])
+    )
+    faces = b""
+    for poly in ([0, 1, 2, 3], [1, 4, 5, 2, 3], [0, 1, 3]):
+        faces += bytes([len(poly)]) + np.array(poly, "<u4").tobytes() + bytes([9])
+    r = read_mesh(head + V.tobytes() + junk + faces, "ply")
+    assert r.F.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2], [1, 2, 3], [0, 1, 3]]
+
+
+def test_ply_point_cloud_without_faces():
+    r = read_mesh(ply_bytes(SQUARE_V), "ply")
+    assert r.F is None and r.V.shape == (5, 3)
+
+
+def test_ply_binary_1m_vertices_is_fast():
+    n = 1_000_000
+    rng = np.random.default_rng(0)
+    V = rng.random((n, 3))
+    F = rng.integers(0, n, (2 * n, 3))
+    b = ply_bytes(V, F)
+    read_mesh(b, "ply")  # warm-up
+    t0 = time.perf_counter()
+    r = read_mesh(b, "ply")
+    assert time.perf_counter() - t0 < 1.0
+    assert r.V.shape == (n, 3) and r.F.shape == (2 * n, 3)
+
+
+def test_obj_forms_negative_indices_polygons(tmp_path):
+    text = (
+        "# comment\nmtllib x.mtl\no body\n"
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+        "vt 0 0\nvn 0 0 1\n"
+        "f 1/1/1 2/1/1 3/1/1 4/1/1\n"
+        "v 2 0 0\n"
+        "f -1//1 -4//1 -3//1\n"
+        "f 1 2 4\n"
+    )
+    p = tmp_path / "a.obj"
+    p.write_text(text)
+    r = read_mesh(p)
+    assert r.V.shape == (5, 3)
+    assert r.F.tolist() == [[0, 1, 2], [0, 2, 3], [4, 1, 2], [0, 1, 3]]
+
+
+def test_obj_and_stl_of_template(tpl):
+    V, F = tpl
+    m = trimesh.Trimesh(V, F, process=False)
+    r = read_mesh(m.export(file_type="obj").encode(), "obj")
+    np.testing.assert_allclose(r.V, V, atol=1e-9)
+    np.testing.assert_array_equal(r.F, F)
+    for ft in ("stl", "stl_ascii"):
+        data = m.export(file_type=ft)
+        data = data.encode() if isinstance(data, str) else data
+        r = read_mesh(data, "stl")
+        # duplicates merged into an indexed mesh with shared vertices
+        assert r.V.shape == V.shape and r.F.shape == F.shape
+        np.testing.assert_allclose(r.V[r.F], V[F], atol=1e-6)
+
+
+def test_stl_sniffed_without_fmt(tpl):
+    V, F = tpl
+    data = trimesh.Trimesh(V, F, process=False).export(file_type="stl")
+    assert read_mesh(data).F.shape == F.shape
+
+
+def test_npz_keys(tpl):
+    V, F = tpl
+    for kv, kf in (("vertices", "faces"), ("V", "F")):
+        buf = io.BytesIO()
+        np.savez(buf, **{kv: V, kf: F, "confidence": np.full(len(V), 0.5)})
+        r = read_mesh(buf.getvalue(), "npz")
+        np.testing.assert_array_equal(r.V, V)
+        np.testing.assert_array_equal(r.F, F)
+        assert np.all(r.confidence == 0.5)
+
+
+@pytest.mark.parametrize("ext", ["xyz", "pts"])
+def test_point_cloud_text(tmp_path, ext):
+    p = tmp_path / f"c.{ext}"
+    if ext == "pts":
+        p.write_text("3\n0 0 0 10 255 0 0\n1,0,0,10,0,255,0\n0 1 0 10 0 0 255\n")
+        r = read_mesh(p)
+        assert r.colors.tolist() == [[255, 0, 0], [0, 255, 0], [0, 0, 255]]
+    else:
+        p.write_text("# x y z nx ny nz\n0 0 0 0 0 1\n1 0 0 0 0 1\r\n0 1 0 0 0 1\n")
+        r = read_mesh(p)
+        np.testing.assert_allclose(r.normals, [[0, 0, 1]] * 3)
+    assert r.F is None and r.V.shape == (3, 3)
+
+
+def test_inspect_header(tpl, tmp_path):
+    V, F = tpl
+    p = tmp_path / "s.ply"
+    p.write_bytes(ply_bytes(V, F, extra={"confidence": np.ones(len(V), np.float32)}))
+    info = inspect_mesh_header(p)
+    assert info == dict(
+        format="ply", n_vertices=len(V), n_faces=len(F), has_normals=False, has_confidence=True
+    )
+    with pytest.raises(InputFormatError, match="limit"):
+        inspect_mesh_header(p, max_vertices=1000)
+    data = trimesh.Trimesh(V, F, process=False).export(file_type="stl")
+    assert inspect_mesh_header(data)["n_faces"] == len(F)
+    obj = trimesh.Trimesh(V, F, process=False).export(file_type="obj").encode()
+    assert inspect_mesh_header(obj, "obj")["n_vertices"] == len(V)
+
+
+def test_inspect_header_detects_truncated_binary(tpl):
+    V, F = tpl
+    b = ply_bytes(V, F)
+    with pytest.raises(InputFormatError, match="truncated"):
+        inspect_mesh_header(b[: len(b) // 2])
+
+
+# --- bad inputs -------------------------------------------------------------------------------
+
+
+def test_empty_file(tmp_path):
+    p = tmp_path / "empty.ply"
+    p.write_bytes(b"")
+    with pytest.raises(InputFormatError, match="empty"):
+        read_mesh(p)
+    with pytest.raises(InputFormatError, match="empty"):
+        read_mesh(b"")
+    with pytest.raises(InputFormatError, match="empty"):
+        inspect_mesh_header(p)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputFormatError, match="not found"):
+        read_mesh(tmp_path / "nope.ply")
+
+
+def test_truncated_binary_ply(tpl):
+    V, F = tpl
+    b = ply_bytes(V, F)
+    for cut in (len(b) - 7, len(b) // 2, 300):
+        with pytest.raises(InputFormatError, match="truncated"):
+            read_mesh(b[:cut], "ply")
+
+
+def test_header_claims_more_vertices_than_present():
+    b = ply_bytes(SQUARE_V).replace(b"element vertex 5", b"element vertex 50")
+    with pytest.raises(InputFormatError, match="truncated"):
+        read_mesh(b, "ply")
+    a = ply_bytes(SQUARE_V, fmt="ascii").replace(b"element vertex 5", b"element vertex 50")
+    with pytest.raises(InputFormatError, match="declares 50"):
+        read_mesh(a, "ply")
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        b"\x00\x01garbage\xff\xfe" * 20,
+        b"ply\nformat binary_little_endian 1.0\nelement vertex abc\nend_header\n",
+        b"ply\nformat weird 1.0\nend_header\n",
+        b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        b"property float z\nend_header\n0 0 0\n1 zz 0\n",
+        b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        b"property float z\nend_header\n0 0 0\n1 0\n",
+        b"ply\nno end header",
+        b"\xff\xfe\xfa\xfb" * 100,
+    ],
+)
+def test_garbage(data):
+    with pytest.raises(InputFormatError):
+        read_mesh(data)
+
+
+def test_garbage_obj_and_stl(tmp_path):
+    p = tmp_path / "x.obj"
+    p.write_bytes(b"v 1 2 three\nf 1 2 3\n")
+    with pytest.raises(InputFormatError, match="three"):
+        read_mesh(p)
+    p = tmp_path / "x.stl"
+    p.write_bytes(b"\x00" * 80 + np.array([1000], "<u4").tobytes() + b"\x00" * 100)
+    with pytest.raises(InputFormatError, match="truncated"):
+        read_mesh(p)
+    p = tmp_path / "x.npz"
+    p.write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(InputFormatError, match="NPZ"):
+        read_mesh(p)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nonfinite_coordinates_rejected(bad):
+    V = SQUARE_V.copy()
+    V[2, 1] = bad
+    V[4, 0] = bad
+    with pytest.raises(InputFormatError, match="2 of 5 vertices have non-finite") as e:
+        read_mesh(ply_bytes(V), "ply")
+    assert e.value.details["first_index"] == 2
+
+
+def test_face_index_out_of_range():
+    F = np.array([[0, 1, 2], [2, 3, 7]])
+    with pytest.raises(InputFormatError, match="face index 7") as e:
+        read_mesh(ply_bytes(SQUARE_V, F), "ply")
+    assert e.value.details["face"] == 1
+    with pytest.raises(InputFormatError, match="out of range"):
+        read_mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "obj")
+
+
+def test_limits_checked_from_header():
+    V = np.zeros((100, 3))
+    b = ply_bytes(V, np.zeros((10, 3), int))
+    with pytest.raises(InputFormatError, match="above the limit of 50"):
+        read_mesh(b, "ply", max_vertices=50)
+    with pytest.raises(InputFormatError, match="faces, above the limit of 5"):
+        read_mesh(b, "ply", max_faces=5)
+    # a huge header count is refused before any allocation or parsing
+    huge = b.replace(b"element vertex 100", b"element vertex 999999999")
+    with pytest.raises(InputFormatError, match="limit"):
+        read_mesh(huge, "ply")
+    with pytest.raises(InputFormatError, match="limit"):
+        read_mesh(b"v 0 0 0\n" * 20, "obj", max_vertices=10)
+
+
+def test_confidence_out_of_range_is_an_error():
+    c = np.array([0.1, 0.5, 1.5, 0.2, 0.3], np.float32)
+    with pytest.raises(InputFormatError, match=r"\[0, 1\]"):
+        read_mesh(ply_bytes(SQUARE_V, extra={"confidence": c}), "ply")
+    ok = np.array([0.0, 0.5, 1.0 + 1e-7, 0.2, 0.3], np.float32)
+    r = read_mesh(ply_bytes(SQUARE_V, extra={"confidence": ok}), "ply")
+    assert r.confidence.max() <= 1.0
+
+
+def test_unknown_format_name():
+    with pytest.raises(InputFormatError, match="unknown mesh format"):
+        read_mesh(b"abc", "fbx")
