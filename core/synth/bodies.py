@@ -294,11 +294,48 @@ def random_body(
     return SynthBody(V=V, sex=sex, params=params)
 
 
+#: Pose ranges, degrees: (low, high) of a uniform draw.
+POSE_RANGES = {
+    "arm_abduction": (-12.0, 12.0),  # + raises the arm sideways (per side)
+    "elbow_flexion": (0.0, 20.0),  # forearm towards the front (per side)
+    "leg_spread": (-2.0, 5.0),  # + moves the foot outwards (per side)
+    "head_turn": (-15.0, 15.0),  # about the vertical, + towards the subject's left
+    "head_tilt": (-6.0, 6.0),  # nod, + chin down
+    "torso_lean_fwd": (-3.0, 4.0),
+    "torso_lean_side": (-3.0, 3.0),
+}
+
+
 def _random_pose(V: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
-    """Small random pose change through ``core.rig`` (identity if the rig is unavailable)."""
+    """Small random pose change by linear blend skinning (``core.rig``); floor reset to y = 0.
+
+    Returns the posed (13380, 3) vertices and the angles used (degrees).
+    """
     try:
-        from core import rig  # optional: written concurrently
-    except ImportError:
+        from core.rig import axis_angle, joint_positions, load_rig, pose_body
+    except ImportError:  # the rig is optional
         return V, {}
-    del rig
-    return V, {}
+    rig = load_rig()
+    J = joint_positions(V, rig=rig)
+    tails = joint_positions(V, rig=rig, ends="tail")
+    ang = {
+        f"{k}{sfx}": float(rng.uniform(*r))
+        for k, r in POSE_RANGES.items()
+        for sfx in (
+            (".L", ".R") if k in ("arm_abduction", "elbow_flexion", "leg_spread") else ("",)
+        )
+    }
+    rad = {k: np.radians(v) for k, v in ang.items()}
+    z, y, x = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    rot: dict[str, np.ndarray] = {}
+    for side, s in ((".L", 1.0), (".R", -1.0)):
+        rot["upperarm01" + side] = axis_angle(z, s * rad["arm_abduction" + side])
+        rot["upperleg01" + side] = axis_angle(z, s * rad["leg_spread" + side])
+        j = rig.index("lowerarm01" + side)
+        d = tails[rig.index("lowerarm02" + side)] - J[j]  # forearm direction at rest
+        rot["lowerarm01" + side] = axis_angle(np.cross(d, z), rad["elbow_flexion" + side])
+    rot["head"] = axis_angle(y, rad["head_turn"]) @ axis_angle(x, rad["head_tilt"])
+    rot["spine03"] = axis_angle(x, rad["torso_lean_fwd"]) @ axis_angle(z, rad["torso_lean_side"])
+    P = pose_body(V, rot, rig=rig, joints=J)
+    P[:, 1] -= P[:, 1].min()
+    return P, ang

@@ -149,3 +149,17 @@ def test_bad_config_is_rejected():
         ScanConfig(up="-x")
     with pytest.raises(ValueError, match="shape"):
         simulate_scan(np.zeros((5, 2)), TPL.F, np.random.default_rng(0))
+
+
+def test_pose_is_small_and_keeps_the_surface_intact():
+    posed = random_body(np.random.default_rng(4))
+    rest = random_body(np.random.default_rng(4), pose=False)
+    if not posed.params.get("pose_deg"):
+        pytest.skip("core.rig not available")
+    assert np.abs(posed.V - rest.V).max() > 0.01  # the pose moved something
+    assert abs(posed.V[:, 1].min()) < 1e-9
+    E = np.concatenate([TPL.F[:, [0, 1]], TPL.F[:, [1, 2]], TPL.F[:, [2, 0]]])
+    ratio = np.linalg.norm(np.diff(posed.V[E], axis=1), axis=2) / np.linalg.norm(
+        np.diff(rest.V[E], axis=1), axis=2
+    )
+    assert np.percentile(ratio, 99.9) < 1.3 and np.percentile(ratio, 0.1) > 0.7
