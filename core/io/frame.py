@@ -60,7 +60,7 @@ FOOT_MARKERS = (
 
 _OPTIONS = (
     'pass units="m", "cm" or "mm" and up="+x", "-x", "+y", "-y", "+z" or "-z" '
-    "(CLI: --units / --up) to say how the file is stored"
+    "to say how the file is stored"
 )
 
 

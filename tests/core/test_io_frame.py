@@ -1,0 +1,100 @@
+"""Units and up-axis detection on the template body in metres / millimetres, Y-up / Z-up."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.errors import UnitsError
+from core.io.frame import UPS, apply_frame, detect_frame, rotation_for_up
+from core.scan import RawMesh
+from core.template import load_template
+
+TPL = load_template()
+
+
+def to_file(X, up, scale):
+    """Canonical -> a file with the given up axis and units (inverse of the frame map)."""
+    return (np.asarray(X) @ rotation_for_up(up)) / scale
+
+
+@pytest.mark.parametrize("up", UPS)
+def test_rotations_are_proper_and_map_up_to_y(up):
+    R = rotation_for_up(up)
+    np.testing.assert_allclose(R @ R.T, np.eye(3))
+    assert np.isclose(np.linalg.det(R), 1.0)
+    axis = np.zeros(3)
+    axis["xyz".index(up[1])] = 1.0 if up[0] == "+" else -1.0
+    np.testing.assert_allclose(R @ axis, [0, 1, 0])
+
+
+def test_zup_keeps_facing_conventional():
+    # the usual Z-up -> Y-up map: x stays, file +z -> +y, file +y -> -z
+    np.testing.assert_allclose(rotation_for_up("+z") @ [1, 2, 3], [1, 3, -2])
+
+
+@pytest.mark.parametrize(("units", "scale"), [("m", 1.0), ("cm", 0.01), ("mm", 0.001)])
+@pytest.mark.parametrize("up", ["+y", "+z", "+x"])
+def test_auto_detects_units_and_positive_up(units, scale, up):
+    V = to_file(TPL.V, up, scale)
+    fr = detect_frame(V)
+    assert (fr.units, fr.up, fr.detected) == (units, up, True)
+    np.testing.assert_allclose(fr.to_canonical(V), TPL.V, atol=1e-9)
+
+
+def test_mm_zup_explicit():
+    V = to_file(TPL.V, "+z", 0.001)
+    fr = detect_frame(V, units="mm", up="+z")
+    assert fr.detected is False and fr.scale == 0.001
+    np.testing.assert_allclose(fr.to_canonical(V), TPL.V, atol=1e-9)
+
+
+def test_upside_down_needs_markers_or_option():
+    V = to_file(TPL.V, "-z", 0.001)
+    assert detect_frame(V).up == "+z"  # documented rule: the largest axis is taken as positive
+    marks = {
+        k: V[TPL.landmarks[k]] for k in ("Vertex", "Sellion", "Toe_tip_L", "Calcaneus_posterior_R")
+    }
+    fr = detect_frame(V, markers=marks)
+    assert (fr.up, fr.units) == ("-z", "mm")
+    np.testing.assert_allclose(fr.to_canonical(V), TPL.V, atol=1e-9)
+    assert detect_frame(V, up="-z").up == "-z"
+
+
+def test_markers_without_head_and_foot_fall_back_to_extent():
+    V = to_file(TPL.V, "+z", 0.01)
+    fr = detect_frame(V, markers={"Crotch": V[TPL.landmarks["Crotch"]]})
+    assert (fr.up, fr.units) == ("+z", "cm")
+
+
+def test_ambiguous_size_names_the_options():
+    V = TPL.V / TPL.V[:, 1].max() * 50.0  # 50 units tall: neither m, cm nor mm
+    with pytest.raises(UnitsError) as e:
+        detect_frame(V)
+    msg = str(e.value)
+    assert "units tall" in msg and "units=" in msg and '"mm"' in msg and "up=" in msg
+    assert detect_frame(V, units="cm").units == "cm"  # explicit units are trusted
+
+
+def test_ambiguous_up_axis():
+    rng = np.random.default_rng(0)
+    V = rng.random((2000, 3)) * [1.7, 1.6, 0.3]  # two nearly equal extents
+    with pytest.raises(UnitsError, match=r"which axis is up.*up="):
+        detect_frame(V)
+
+
+def test_unknown_options():
+    with pytest.raises(UnitsError, match="unknown units"):
+        detect_frame(TPL.V, units="inch")
+    with pytest.raises(UnitsError, match="unknown up"):
+        detect_frame(TPL.V, up="z")
+
+
+def test_apply_frame_maps_normals_and_keeps_faces():
+    V = to_file(TPL.V, "+z", 0.001)
+    N = np.tile([0.0, 0.0, 1.0], (len(V), 1))
+    fr = detect_frame(V)
+    out = apply_frame(RawMesh(V=V, F=np.array(TPL.F), normals=N), fr)
+    np.testing.assert_allclose(out.V, TPL.V, atol=1e-9)
+    np.testing.assert_allclose(out.normals, np.tile([0, 1, 0], (len(V), 1)), atol=1e-12)
+    np.testing.assert_array_equal(out.F, TPL.F)
