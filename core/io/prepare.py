@@ -130,7 +130,8 @@ def _radial(V: np.ndarray, slab: float = 0.05) -> np.ndarray:
     for j in range(2):
         np.minimum.at(lo[:, j], b, xz[:, j])
         np.maximum.at(hi[:, j], b, xz[:, j])
-    centre = (lo + hi) / 2.0
+    with np.errstate(invalid="ignore"):  # empty slabs (never indexed) give inf - inf
+        centre = (lo + hi) / 2.0
     r = np.zeros_like(V)
     r[:, [0, 2]] = xz - centre[b]
     return normalize(r, fallback=(0.0, 0.0, 0.0))

@@ -1,0 +1,166 @@
+"""Scan preparation: frame mapping, cleaning, normals, boundary and confidence."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from core.io.frame import detect_frame, rotation_for_up
+from core.io.markers import write_markers_csv
+from core.io.prepare import load_scan, prepare_scan
+from core.io.writers import write_ply
+from core.scan import RawMesh
+from core.template import load_template
+
+TPL = load_template()
+V0 = np.array(TPL.V)
+F0 = np.array(TPL.F, dtype=np.int64)
+GT_N = trimesh.Trimesh(V0, F0, process=False).vertex_normals
+
+
+def prep(raw):
+    return prepare_scan(raw, detect_frame(raw.V))
+
+
+def test_load_scan_mm_zup_with_markers(tmp_path):
+    R = rotation_for_up("+z")
+    Vf = (V0 @ R) * 1000.0  # millimetres, Z up
+    write_ply(tmp_path / "scan.ply", Vf, F0)
+    names = ["Vertex", "Sellion", "Toe_tip_L", "Calcaneus_posterior_R", "Crotch"]
+    write_markers_csv(tmp_path / "m.csv", {k: Vf[TPL.landmarks[k]] for k in names})
+    scan, marks = load_scan(tmp_path / "scan.ply", markers_path=tmp_path / "m.csv")
+    assert scan.frame.units == "mm" and scan.frame.up == "+z"
+    np.testing.assert_allclose(scan.V, V0, atol=1e-9)
+    np.testing.assert_array_equal(scan.F, F0)
+    for k in names:
+        np.testing.assert_allclose(marks[k], V0[TPL.landmarks[k]], atol=1e-9)
+    assert scan.notes[0].startswith("units mm (detected), up axis +z (detected)")
+    assert "confidence estimated" in scan.notes
+    # explicit options give the same result
+    scan2, none = load_scan(tmp_path / "scan.ply", units="mm", up="+z")
+    assert none is None and "given" in scan2.notes[0]
+    np.testing.assert_allclose(scan2.V, scan.V)
+
+
+def test_mesh_normals_outward_and_inward_winding_flipped():
+    s = prep(RawMesh(V=V0, F=F0))
+    assert np.mean(np.sum(s.normals * GT_N, axis=1) > 0.9) > 0.99
+    np.testing.assert_allclose(np.linalg.norm(s.normals, axis=1), 1.0)
+    assert not s.boundary.any()  # the template is closed
+    assert np.all(s.confidence == 1.0)
+    inward = prep(RawMesh(V=V0, F=F0[:, ::-1]))
+    assert any("flipped" in n for n in inward.notes)
+    np.testing.assert_allclose(inward.normals, s.normals, atol=1e-12)
+
+
+def test_file_normals_inward_flipped_and_file_confidence_kept():
+    c = np.full(len(V0), 0.7)
+    s = prep(RawMesh(V=V0, F=F0, normals=-GT_N, confidence=c))
+    assert "normals from file" in s.notes and "confidence from file" in s.notes
+    assert any("pointed inward" in n for n in s.notes)
+    np.testing.assert_allclose(s.normals, GT_N, atol=1e-9)
+    assert np.all(s.confidence == 0.7)
+
+
+def hole_mesh(center_vertex: int, radius: float):
+    """The template with the triangles within ``radius`` of a vertex removed."""
+    c = V0[center_vertex]
+    far = np.linalg.norm(V0[F0].mean(axis=1) - c, axis=1) > radius
+    return F0[far]
+
+
+def test_mesh_hole_boundary_and_confidence_ramp():
+    vi = TPL.landmarks["Omphalion"]
+    F = hole_mesh(vi, 0.04)
+    s = prep(RawMesh(V=V0, F=F))
+    # the unreferenced vertices inside the hole are dropped
+    assert len(s.V) < len(V0) and any("not used" in n for n in s.notes)
+    assert s.boundary.any()
+    d = np.linalg.norm(s.V - V0[vi], axis=1)
+    assert np.all(d[s.boundary] < 0.06) and np.all(d[s.boundary] > 0.03)
+    assert np.all(s.confidence[s.boundary] == pytest.approx(0.2))
+    far = d > 0.2
+    assert np.all(s.confidence[far] == 1.0)
+    near = (~s.boundary) & (d < 0.05)
+    assert np.mean(s.confidence[near]) < 1.0
+    assert s.confidence.min() >= 0.2 and s.confidence.max() <= 1.0
+
+
+def test_non_manifold_rim_is_boundary_and_duplicates_welded():
+    # split the mesh: every triangle gets its own three vertices (like an STL or UV seams)
+    Vs = V0[F0].reshape(-1, 3)
+    Fs = np.arange(len(Vs)).reshape(-1, 3)
+    s = prep(RawMesh(V=Vs, F=Fs))
+    assert len(s.V) == len(V0) and not s.boundary.any()
+    assert any("welded" in n for n in s.notes)
+    # a fin: an extra triangle on an existing edge makes that edge non-manifold
+    e0, e1 = F0[0, 0], F0[0, 1]
+    V2 = np.vstack([V0, V0[e0] + [0, 0, 0.01]])
+    F2 = np.vstack([F0, [e0, e1, len(V0)]])
+    s2 = prep(RawMesh(V=V2, F=F2))
+    assert s2.boundary[e0] and s2.boundary[e1]
+
+
+def test_degenerate_and_duplicate_triangles_dropped():
+    F = np.vstack([F0, F0[:5], [[0, 0, 1]]])
+    s = prep(RawMesh(V=V0, F=F))
+    assert len(s.F) == len(F0)
+    assert any("degenerate" in n for n in s.notes) and any("duplicate" in n for n in s.notes)
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    m = trimesh.Trimesh(V0, F0, process=False)
+    P, fi = trimesh.sample.sample_surface(m, 30000, seed=1)
+    return np.asarray(P), m.face_normals[fi]
+
+
+def test_point_cloud_normals_oriented_outward(cloud):
+    P, gt = cloud
+    s = prep(RawMesh(V=P * 1000.0))  # millimetres
+    assert s.F is None and s.frame.units == "mm"
+    agree = np.sum(s.normals * gt, axis=1)
+    assert np.mean(agree > 0) > 0.95
+    assert np.median(agree) > 0.95
+    assert s.boundary.mean() < 0.05  # a closed surface has (almost) no boundary
+    assert "normals estimated (PCA)" in s.notes and "confidence estimated" in s.notes
+
+
+def test_point_cloud_hole_boundary_and_lower_confidence(cloud):
+    P, _ = cloud
+    c = V0[TPL.landmarks["Omphalion"]]
+    d = np.linalg.norm(P - c, axis=1)
+    s = prep(RawMesh(V=P[d > 0.05]))
+    d = np.linalg.norm(s.V - c, axis=1)
+    rim = d < 0.06
+    assert s.boundary[rim].mean() > 0.3
+    assert s.boundary[rim].mean() > 10 * s.boundary[d > 0.15].mean()
+    assert s.confidence[rim].mean() < 0.6 < s.confidence[d > 0.15].mean()
+
+
+def test_isolated_points_get_low_confidence(cloud):
+    P, _ = cloud
+    stray = np.array([[0.0, 3.0, 0.0], [1.5, 1.0, 1.5]])
+    s = prep(RawMesh(V=np.vstack([P, stray])))
+    assert np.all(s.confidence[-2:] == pytest.approx(0.2))
+
+
+def test_prepare_300k_mesh_under_a_second():
+    V, F = trimesh.remesh.subdivide(V0, F0)
+    V, F = trimesh.remesh.subdivide(V, F)
+    shift = np.array([0.0, 0.0, 2.0])
+    V = np.vstack([V, V[: 300_000 - len(V)] + shift])  # pad to 300k vertices
+    F = np.vstack([F, F[F.max(axis=1) < 300_000 - 214_050] + 214_050])
+    raw = RawMesh(V=V * 1000.0, F=F)
+    frame = detect_frame(raw.V, units="mm", up="+y")
+    best = min(_timed(raw, frame) for _ in range(2))
+    assert best < 1.0
+
+
+def _timed(raw, frame):
+    t0 = time.perf_counter()
+    prepare_scan(raw, frame)
+    return time.perf_counter() - t0
