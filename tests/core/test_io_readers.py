@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import time
 
@@ -336,3 +337,31 @@ def test_confidence_out_of_range_is_an_error():
 def test_unknown_format_name():
     with pytest.raises(InputFormatError, match="unknown mesh format"):
         read_mesh(b"abc", "fbx")
+
+
+def test_corrupted_files_only_raise_input_format_error(tpl):
+    """Random truncations and byte flips never leak IndexError, struct.error and the like."""
+    V, F = tpl
+    V, F = V[:200], F[F.max(axis=1) < 200][:50]
+    m = trimesh.Trimesh(V, F, process=False)
+    buf = io.BytesIO()
+    np.savez(buf, vertices=V, faces=F)
+    seeds = [
+        (ply_bytes(V, F), "ply"),
+        (ply_bytes(V, F, fmt="ascii"), "ply"),
+        (m.export(file_type="obj").encode(), "obj"),
+        (m.export(file_type="stl"), "stl"),
+        (buf.getvalue(), "npz"),
+    ]
+    rng = np.random.default_rng(0)
+    for i in range(400):
+        data, fmt = seeds[i % len(seeds)]
+        b = bytearray(data)
+        if i % 2:
+            b = b[: int(rng.integers(0, len(b)))]
+        else:
+            for j in rng.integers(0, len(b), 5):
+                b[j] = int(rng.integers(0, 256))
+        for f in (fmt, None):
+            with contextlib.suppress(InputFormatError):
+                read_mesh(bytes(b), f)
