@@ -1,0 +1,94 @@
+"""Closest *compatible* scan point for each template vertex (the data term's correspondences).
+
+Compatible (Allen et al. 2003, §3): surface normals less than ``max_angle_deg`` apart and the point
+within ``max_distance``. The data weight ``w_i`` is the scan's confidence ramp at that point, and 0
+where the point lies on a hole boundary (so holes are filled by smoothness, not pulled to rims).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.scan import Scan
+
+
+def confidence_weight(c: np.ndarray, full_at: float = 0.2) -> np.ndarray:
+    """Paper's confidence ramp: 0 at c ≤ 0, 1 at c ≥ ``full_at``, linear between. (n,) → (n,)."""
+    return np.clip(np.asarray(c, dtype=np.float64) / full_at, 0.0, 1.0)
+
+
+@dataclass
+class Correspondences:
+    """Targets and weights for the data term.
+
+    Attributes
+    ----------
+    targets : (n, 3) target positions (scan units), the closest compatible point projected onto
+        its tangent plane; undefined where ``weights == 0``.
+    weights : (n,) data weights w_i in [0, 1].
+    distances : (n,) distance to the matched point (inf where none was compatible).
+    on_boundary : (n,) bool, the matched point lies on a hole boundary.
+    """
+
+    targets: np.ndarray
+    weights: np.ndarray
+    distances: np.ndarray
+    on_boundary: np.ndarray
+
+
+class ScanIndex:
+    """A scan with a KD-tree, ready for repeated correspondence queries."""
+
+    def __init__(self, scan: Scan, *, confidence_full_at: float = 0.2) -> None:
+        self.scan = scan
+        self.points = np.ascontiguousarray(scan.V, dtype=np.float64)
+        self.normals = np.ascontiguousarray(scan.normals, dtype=np.float64)
+        self.point_weight = confidence_weight(scan.confidence, confidence_full_at)
+        self.boundary = np.asarray(scan.boundary, dtype=bool)
+        self.tree = cKDTree(self.points)
+
+    def closest_compatible(
+        self,
+        X: np.ndarray,
+        N: np.ndarray,
+        *,
+        max_distance: float,
+        max_angle_deg: float = 90.0,
+        k: int = 12,
+        project: bool = True,
+    ) -> Correspondences:
+        """Match deformed template vertices X (n, 3) with unit normals N (n, 3) to the scan.
+
+        Takes, among the ``k`` nearest scan points within ``max_distance``, the nearest whose
+        normal is within ``max_angle_deg`` of the template normal.
+        """
+        n = len(X)
+        k = max(1, min(k, len(self.points)))
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=-1)
+        if k == 1:
+            d, j = d[:, None], j[:, None]
+        valid = np.isfinite(d)
+        jj = np.where(valid, j, 0)
+        cos_lim = np.cos(np.deg2rad(max_angle_deg))
+        dots = np.einsum("nkc,nc->nk", self.normals[jj], N)
+        ok = valid & (dots > cos_lim)
+        has = ok.any(axis=1)
+        first = np.argmax(ok, axis=1)
+        jm = jj[np.arange(n), first]
+        dist = np.where(has, d[np.arange(n), first], np.inf)
+        P = self.points[jm]
+        if project:
+            Np = self.normals[jm]
+            off = np.einsum("nc,nc->n", X - P, Np)
+            P = X - off[:, None] * Np
+        on_b = has & self.boundary[jm]
+        w = np.where(has & ~on_b, self.point_weight[jm], 0.0)
+        return Correspondences(targets=P, weights=w, distances=dist, on_boundary=on_b)
+
+    def distance_to_points(self, X: np.ndarray) -> np.ndarray:
+        """Distance (n,) from each of X (n, 3) to the nearest scan point."""
+        d, _ = self.tree.query(X, k=1, workers=-1)
+        return d

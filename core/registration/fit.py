@@ -1,0 +1,386 @@
+"""Fit the template body to a scan with markers (Allen, Curless, Popović 2003, §3).
+
+``fit`` optimises one 3×4 affine per template vertex under E = α·E_d + β·E_s + γ·E_m, following
+a :class:`Schedule` from a low- to the full-resolution template, and returns the fitted body in
+template vertex order.
+
+Solver units: positions are expressed in millimetres about the body's centre inside the solver
+(``unit_scale=1000``), as the paper's CAESAR scans were; the α/β/γ weights are the paper's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from core.errors import FitError, MarkerError
+from core.geometry import MeshDistance
+from core.registration.correspondence import ScanIndex
+from core.registration.initialization import align_markers
+from core.registration.multires import Hierarchy, build_hierarchy
+from core.registration.operators import (
+    ResolutionLevel,
+    apply_affines,
+    make_level,
+    unique_edges,
+    vertex_normals,
+)
+from core.registration.schedule import Schedule
+from core.registration.solver import AffineSolver, SystemTerms, energies
+from core.scan import Scan
+from core.template import Template, load_template
+
+
+@dataclass
+class Progress:
+    """One correspondence update: reported to callbacks and yielded by :func:`iter_fit`."""
+
+    stage: int  # 0-based
+    n_stages: int
+    iteration: int  # 0-based within the stage
+    resolution: str
+    energy: dict[str, float]
+    max_step_m: float  # largest vertex move in this update, metres
+    elapsed_s: float
+
+    @property
+    def fraction(self) -> float:
+        """Rough completion in [0, 1]."""
+        return min(1.0, (self.stage + 0.5) / self.n_stages)
+
+
+@dataclass
+class StageReport:
+    stage: int
+    alpha: float
+    beta: float
+    gamma: float
+    resolution: str
+    iterations: int
+    converged: bool
+    energy: dict[str, float]
+    seconds: float
+    factorizations: int
+    cg_iterations: int
+
+
+@dataclass
+class FitReport:
+    """What a fit did: energies, timings, distances (metres), warnings."""
+
+    stages: list[StageReport] = field(default_factory=list)
+    seconds: float = 0.0
+    scan_to_fit_mean_m: float = float("nan")
+    scan_to_fit_p95_m: float = float("nan")
+    no_data_fraction: float = float("nan")
+    markers_used: list[str] = field(default_factory=list)
+    markers_dropped: list[str] = field(default_factory=list)
+    marker_residuals_m: dict[str, float] = field(default_factory=dict)
+    scale: float = float("nan")
+    units: str | None = None
+    up: str | None = None
+    scan_vertices: int = 0
+    scan_faces: int = 0
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary."""
+        return asdict(self)
+
+
+@dataclass
+class FitResult:
+    """The fitted body.
+
+    Attributes
+    ----------
+    vertices : (13380, 3) float64 fitted template, metres, in the scan's (canonical) frame.
+    faces : (26756, 3) template triangles.
+    affines : (13380, 3, 4) per-vertex affines mapping template metres to scan metres.
+    data_weight : (13380,) final data-term weight of each vertex (0: filled by smoothness).
+    report : :class:`FitReport`.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    affines: np.ndarray
+    data_weight: np.ndarray
+    report: FitReport
+
+
+class FitCancelled(Exception):
+    """Raised when a progress callback returns False."""
+
+
+@dataclass
+class TemplateOperators:
+    """Per-template precomputation shared by all fits (cached)."""
+
+    template: Template
+    full: ResolutionLevel
+    low: ResolutionLevel
+    hierarchy: Hierarchy
+    centre: np.ndarray  # (3,) metres, template centroid
+    unit_scale: float
+
+
+_OPERATORS: dict[tuple[int, int, float], TemplateOperators] = {}
+
+
+def template_operators(
+    template: Template | None = None, *, n_low: int = 2500, unit_scale: float = 1000.0
+) -> TemplateOperators:
+    """Build (once per template and settings) the operators a fit needs."""
+    template = template or load_template()
+    key = (id(template), n_low, unit_scale)
+    if key in _OPERATORS:
+        return _OPERATORS[key]
+    V, F = template.V, np.asarray(template.F, dtype=np.int64)
+    centre = V.mean(axis=0)
+    Vs = (V - centre) * unit_scale
+    bad = template.extras.get("mask_bad_scan")
+    data_mask = np.ones(len(V), bool) if bad is None else ~np.asarray(bad, dtype=bool)
+    full = make_level(Vs, unique_edges(F), data_mask, np.arange(len(V)))
+    lm = np.array(sorted(template.landmarks.values()), dtype=np.int64)
+    hier = build_hierarchy(V, F, n_low=n_low, required=lm)
+    low = make_level(Vs[hier.seeds], hier.low_edges, data_mask[hier.seeds], hier.seeds)
+    ops = TemplateOperators(template, full, low, hier, centre, unit_scale)
+    _OPERATORS[key] = ops
+    return ops
+
+
+def _check_scan(scan: Scan) -> None:
+    V = np.asarray(scan.V)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 100:
+        raise FitError(f"scan needs at least 100 points as an (n, 3) array; got shape {V.shape}")
+    if not np.isfinite(V).all():
+        raise FitError("scan has non-finite coordinates (NaN or Inf)")
+    for name in ("normals", "confidence", "boundary"):
+        a = getattr(scan, name)
+        if a is None or len(a) != len(V):
+            raise FitError(f"scan.{name} must have one entry per point ({len(V)})")
+
+
+def iter_fit(
+    scan: Scan,
+    markers: dict[str, np.ndarray],
+    *,
+    schedule: Schedule | None = None,
+    template: Template | None = None,
+    max_distance: float = 0.10,
+    max_angle_deg: float = 90.0,
+    confidence_full_at: float = 0.2,
+    marker_far_distance: float = 0.10,
+    n_low: int = 2500,
+    unit_scale: float = 1000.0,
+) -> Iterator[Progress | FitResult]:
+    """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
+
+    Parameters
+    ----------
+    scan : the scan, metres, canonical frame (see ``core.io.prepare``).
+    markers : landmark name -> (3,) position, metres, same frame as the scan.
+    schedule : stage weights and iteration limits; default :meth:`Schedule.paper`.
+    max_distance : metres; farther scan points are not compatible (paper: 10 cm).
+    max_angle_deg : normals more than this apart are not compatible (paper: 90°).
+    confidence_full_at : confidence at which the data weight reaches 1 (paper: 0.2).
+    marker_far_distance : metres; markers farther than this from any scan point are dropped.
+    """
+    t_start = time.perf_counter()
+    schedule = schedule or Schedule.paper()
+    _check_scan(scan)
+    ops = template_operators(template, n_low=n_low, unit_scale=unit_scale)
+    tpl = ops.template
+    u = unit_scale
+    report = FitReport(scan_vertices=len(scan.V), scan_faces=0 if scan.F is None else len(scan.F))
+    report.notes.extend(scan.notes)
+    if scan.frame is not None:
+        report.units, report.up = scan.frame.units, scan.frame.up
+
+    index = ScanIndex(scan, confidence_full_at=confidence_full_at)
+
+    # Markers: drop unknown names (readers reject them earlier), far ones, then align.
+    markers = {k: np.asarray(v, dtype=np.float64) for k, v in markers.items()}
+    unknown = sorted(set(markers) - set(tpl.landmarks))
+    if unknown:
+        raise MarkerError(f"unknown marker names: {', '.join(unknown)}", unknown=unknown)
+    if markers:
+        names = list(markers)
+        dist = index.distance_to_points(np.array([markers[k] for k in names]))
+        far = [k for k, d in zip(names, dist, strict=True) if d > marker_far_distance]
+        if far and len(far) == len(names):
+            raise FitError(
+                f"all markers are more than {marker_far_distance * 100:.0f} cm from the scan: "
+                "are they in the scan's units and frame?",
+                nearest_m=float(dist.min()),
+            )
+        for k in far:
+            d = float(dist[names.index(k)])
+            report.warnings.append(f"marker {k} is {d * 100:.1f} cm from the scan: ignored")
+            markers.pop(k)
+        report.markers_dropped.extend(far)
+    tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
+    align = align_markers(tl, markers)
+    report.warnings.extend(align.warnings)
+    report.markers_dropped.extend(align.dropped)
+    report.markers_used = align.used
+    report.marker_residuals_m = align.residuals
+    sim = align.similarity
+    report.scale = sim.s
+
+    # Solver frame: millimetres (u) about the similarity-mapped template centre.
+    c_scan = sim.apply(ops.centre[None])[0]
+
+    def to_solver(X: np.ndarray) -> np.ndarray:
+        return (X - c_scan) * u
+
+    def to_world(Xs: np.ndarray) -> np.ndarray:
+        return Xs / u + c_scan
+
+    A0 = np.hstack([sim.s * sim.R, np.zeros((3, 1))])  # (3, 4) in solver units
+    marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
+    marker_pos = to_solver(np.array([markers[k] for k in align.used]))
+    F_full = np.asarray(tpl.F, dtype=np.int64)
+    low_pos = {int(v): i for i, v in enumerate(ops.low.vertex_ids)}
+
+    def x_from_affines(A: np.ndarray) -> np.ndarray:  # (n,3,4) -> (4n,3)
+        return np.ascontiguousarray(A.transpose(0, 2, 1)).reshape(-1, 3)
+
+    def affines_from_x(x: np.ndarray) -> np.ndarray:
+        return x.reshape(-1, 4, 3).transpose(0, 2, 1)
+
+    level: ResolutionLevel | None = None
+    solver: AffineSolver | None = None
+    x: np.ndarray | None = None
+    x_reg: np.ndarray | None = None
+    n_stages = len(schedule.stages)
+    weights_full = np.zeros(tpl.n_vertices)
+    for si, st in enumerate(schedule.stages):
+        t_stage = time.perf_counter()
+        want = ops.low if st.resolution == "low" else ops.full
+        if level is not want:
+            if level is None:
+                x = x_from_affines(np.broadcast_to(A0, (want.n, 3, 4)))
+            else:  # low -> high: blend the low-resolution affines
+                A_low = affines_from_x(x).reshape(level.n, 12)
+                x = x_from_affines((ops.hierarchy.upsample @ A_low).reshape(-1, 3, 4))
+            x_reg = x.copy()
+            level = want
+            solver = AffineSolver(level)
+        assert solver is not None and x is not None and x_reg is not None
+        solver.reset()
+        if level is ops.low:
+            m_idx = np.array([low_pos[int(v)] for v in marker_vid], dtype=np.int64)
+        else:
+            m_idx = marker_vid
+        n_fact = 0
+        n_cg = 0
+        converged = False
+        en: dict[str, float] = {}
+        it = 0
+        for it in range(st.max_iterations):
+            A = affines_from_x(x)
+            Xs = apply_affines(A, level.V)
+            if st.alpha > 0:
+                # normals of the deformed full mesh, sampled at this level's vertices
+                if level is ops.full:
+                    X_full = Xs
+                else:
+                    A_full = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
+                    X_full = apply_affines(A_full, ops.full.V)
+                N = vertex_normals(X_full, F_full)[level.vertex_ids]
+                corr = index.closest_compatible(
+                    to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
+                )
+                w = corr.weights * level.data_mask
+                d_idx = np.flatnonzero(w > 0)
+                terms = SystemTerms(
+                    st.alpha,
+                    st.beta,
+                    st.gamma,
+                    d_idx,
+                    w[d_idx],
+                    to_solver(corr.targets[d_idx]),
+                    m_idx,
+                    marker_pos,
+                )
+            else:
+                w = np.zeros(level.n)
+                terms = SystemTerms(
+                    st.alpha,
+                    st.beta,
+                    st.gamma,
+                    np.zeros(0, np.int64),
+                    np.zeros(0),
+                    np.zeros((0, 3)),
+                    m_idx,
+                    marker_pos,
+                )
+            x_new, stats = solver.solve(terms, x, x_reg)
+            n_fact += int(stats.factorized)
+            n_cg += stats.cg_iterations
+            X_new = apply_affines(affines_from_x(x_new), level.V)
+            step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / u
+            x = x_new
+            en = energies(level, terms, x)
+            if level is ops.full:
+                weights_full = w
+            yield Progress(si, n_stages, it, st.resolution, en, step, time.perf_counter() - t_start)
+            if step < st.tolerance_m:
+                converged = True
+                break
+        report.stages.append(
+            StageReport(
+                si,
+                st.alpha,
+                st.beta,
+                st.gamma,
+                st.resolution,
+                it + 1,
+                converged,
+                en,
+                time.perf_counter() - t_stage,
+                n_fact,
+                n_cg,
+            )
+        )
+
+    assert level is not None and x is not None
+    A = affines_from_x(x)
+    if level is not ops.full:
+        A = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
+    X = to_world(apply_affines(A, ops.full.V))
+    # affines in metres: x_world = A_s (u (v - c)) / u + c_scan
+    A_m = A.copy()
+    A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], ops.centre)
+    d = MeshDistance(X, F_full).distances(scan.V)
+    report.scan_to_fit_mean_m = float(np.mean(d))
+    report.scan_to_fit_p95_m = float(np.percentile(d, 95))
+    report.no_data_fraction = float(np.mean(weights_full <= 0))
+    report.seconds = time.perf_counter() - t_start
+    yield FitResult(vertices=X, faces=F_full, affines=A_m, data_weight=weights_full, report=report)
+
+
+def fit(
+    scan: Scan,
+    markers: dict[str, np.ndarray],
+    *,
+    callback: Callable[[Progress], bool | None] | None = None,
+    **options: Any,
+) -> FitResult:
+    """Fit the template to ``scan`` guided by ``markers``; see :func:`iter_fit` for options.
+
+    ``callback(progress)`` is called after every correspondence update; returning ``False``
+    cancels the fit (:class:`FitCancelled`).
+    """
+    for item in iter_fit(scan, markers, **options):
+        if isinstance(item, FitResult):
+            return item
+        if callback is not None and callback(item) is False:
+            raise FitCancelled(f"fit cancelled at stage {item.stage}, iteration {item.iteration}")
+    raise RuntimeError("iter_fit ended without a result")  # pragma: no cover

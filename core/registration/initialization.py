@@ -1,0 +1,137 @@
+"""Initial alignment: a similarity transform (scale, rotation, translation) from markers.
+
+Maps template landmark vertices onto the measured markers, so a scan in any frame and unit
+(already converted to metres by the reader) starts close. Markers that disagree with the rest are
+reported and left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.errors import MarkerError
+
+
+@dataclass
+class Similarity:
+    """``x ↦ s R x + t``: scale s, rotation R (3, 3) with det +1, translation t (3,)."""
+
+    s: float
+    R: np.ndarray
+    t: np.ndarray
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """Transform points X (n, 3)."""
+        return self.s * X @ self.R.T + self.t
+
+    def affine(self) -> np.ndarray:
+        """The (3, 4) matrix ``[sR | t]``."""
+        return np.hstack([self.s * self.R, self.t[:, None]])
+
+
+@dataclass
+class MarkerAlignment:
+    """Result of :func:`align_markers`."""
+
+    similarity: Similarity
+    used: list[str]
+    dropped: list[str]
+    residuals: dict[str, float]  # metres, per used marker after alignment
+    warnings: list[str] = field(default_factory=list)
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None) -> Similarity:
+    """Least-squares similarity mapping src (k, 3) onto dst (k, 3), optional weights (k,)."""
+    w = np.ones(len(src)) if w is None else np.asarray(w, dtype=np.float64)
+    w = w / w.sum()
+    mu_s = w @ src
+    mu_d = w @ dst
+    S = src - mu_s
+    D = dst - mu_d
+    C = (D * w[:, None]).T @ S
+    U, sig, Vt = np.linalg.svd(C)
+    E = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        E[2, 2] = -1.0
+    R = U @ E @ Vt
+    var_s = float(w @ np.sum(S**2, axis=1))
+    s = float(np.trace(np.diag(sig) @ E) / max(var_s, 1e-30))
+    t = mu_d - s * R @ mu_s
+    return Similarity(s=s, R=R, t=t)
+
+
+def align_markers(
+    template_landmarks: dict[str, np.ndarray],
+    markers: dict[str, np.ndarray],
+    *,
+    min_markers: int = 3,
+    outlier_distance: float = 0.25,
+    warn_distance: float = 0.08,
+) -> MarkerAlignment:
+    """Similarity from template landmark positions to markers (both name -> (3,), metres).
+
+    Markers whose residual exceeds ``outlier_distance`` after a robust fit are dropped with a
+    warning; residuals above ``warn_distance`` are warned about (pose differences from the
+    template, e.g. raised arms, legitimately cause some).
+
+    Raises
+    ------
+    MarkerError
+        Fewer than ``min_markers`` usable markers, or the markers are degenerate (collinear).
+    """
+    names = [k for k in markers if k in template_landmarks]
+    if len(names) < min_markers:
+        raise MarkerError(
+            f"need at least {min_markers} markers named after template landmarks; "
+            f"got {len(names)} ({', '.join(names) or 'none'})",
+            n_markers=len(names),
+        )
+    src = np.array([template_landmarks[k] for k in names], dtype=np.float64)
+    dst = np.array([markers[k] for k in names], dtype=np.float64)
+    if not np.isfinite(dst).all():
+        raise MarkerError("marker coordinates must be finite numbers")
+    sv = np.linalg.svd(src - src.mean(0), compute_uv=False)
+    if sv[1] < 1e-3 * max(sv[0], 1e-12):
+        raise MarkerError("markers are (nearly) collinear: at least 3 spread-out markers needed")
+
+    # Iteratively reweighted fit; then drop gross outliers and refit.
+    w = np.ones(len(names))
+    for _ in range(10):
+        sim = umeyama(src, dst, w)
+        r = np.linalg.norm(sim.apply(src) - dst, axis=1)
+        scale = max(1.4826 * float(np.median(r)), 0.01)
+        w = 1.0 / (1.0 + (r / (2.0 * scale)) ** 2)
+    keep = r <= outlier_distance
+    warnings: list[str] = []
+    if keep.sum() < min_markers:
+        raise MarkerError(
+            "markers disagree with each other: no consistent set of "
+            f"{min_markers} found (are they in the scan's frame and units, and correctly named?)"
+        )
+    dropped = [names[i] for i in np.flatnonzero(~keep)]
+    for i in np.flatnonzero(~keep):
+        warnings.append(
+            f"marker {names[i]} is {r[i] * 100:.0f} cm from where the other markers place it: "
+            "ignored (misnamed or misplaced?)"
+        )
+    used_idx = np.flatnonzero(keep)
+    sim = umeyama(src[used_idx], dst[used_idx])
+    r = np.linalg.norm(sim.apply(src[used_idx]) - dst[used_idx], axis=1)
+    residuals = {names[i]: float(ri) for i, ri in zip(used_idx, r, strict=True)}
+    for name, ri in residuals.items():
+        if ri > warn_distance:
+            warnings.append(
+                f"marker {name} is {ri * 100:.0f} cm from the template's similarity alignment "
+                "(a pose difference or a misplaced marker)"
+            )
+    if not 0.3 < sim.s < 3.0:
+        warnings.append(f"markers imply a body {sim.s:.2f}× the template's size; check units")
+    return MarkerAlignment(
+        similarity=sim,
+        used=[names[i] for i in used_idx],
+        dropped=dropped,
+        residuals=residuals,
+        warnings=warnings,
+    )

@@ -1,0 +1,123 @@
+"""Template operators for the affine-per-vertex registration, built once and cached.
+
+Unknowns: one 3×4 affine ``T_i`` per template vertex. The energy separates over the three output
+coordinates, so each coordinate ``c`` solves for ``x_c`` (4n,), where ``x_c[4i:4i+4]`` is row ``c``
+of ``T_i``; all three share one system matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def unique_edges(F: np.ndarray) -> np.ndarray:
+    """Unique undirected edges of a triangle mesh: (E, 2) int64, each row sorted."""
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).astype(np.int64)
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def graph_laplacian(edges: np.ndarray, n: int) -> sp.csr_matrix:
+    """Combinatorial Laplacian (n, n) of an undirected edge list: ``Σ_edges (x_i - x_j)²``."""
+    i, j = edges[:, 0], edges[:, 1]
+    ones = np.ones(len(edges))
+    A = sp.coo_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    return (sp.diags(deg) - A).tocsr()
+
+
+def homogeneous(V: np.ndarray) -> np.ndarray:
+    """(n, 4) rows ``[x, y, z, 1]``."""
+    return np.hstack([V, np.ones((len(V), 1))])
+
+
+def apply_affines(A: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Apply per-vertex affines A (n, 3, 4) to V (n, 3): ``T_i v_i`` (n, 3)."""
+    return np.einsum("nij,nj->ni", A, homogeneous(V))
+
+
+@dataclass
+class ResolutionLevel:
+    """One resolution of the template, with the operators a solve needs.
+
+    Attributes
+    ----------
+    V : (n, 3) template vertices at this level, solver units.
+    edges : (E, 2) smoothness edges.
+    smooth_kron : (4n, 4n) ``L ⊗ I4``: the smoothness term's matrix.
+    data_mask : (n,) bool, False where the template is known to scan badly (w_i = 0).
+    vertex_ids : (n,) indices of these vertices in the full template (identity at full res).
+    """
+
+    V: np.ndarray
+    edges: np.ndarray
+    smooth_kron: sp.csr_matrix
+    data_mask: np.ndarray
+    vertex_ids: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.V)
+
+    def selector(self, idx: np.ndarray, weights: np.ndarray | None = None) -> sp.csr_matrix:
+        """(k, 4n) matrix mapping ``x_c`` to ``(T_i v_i)_c`` for vertices ``idx``.
+
+        ``weights`` (k,) scale the rows (use sqrt of term weights).
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        k = len(idx)
+        vals = homogeneous(self.V[idx])
+        if weights is not None:
+            vals = vals * weights[:, None]
+        rows = np.repeat(np.arange(k), 4)
+        cols = (4 * idx[:, None] + np.arange(4)).ravel()
+        return sp.csr_matrix((vals.ravel(), (rows, cols)), shape=(k, 4 * self.n))
+
+    def gram(self, idx: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
+        """Block-diagonal (4n, 4n) ``Σ_k w_k ṽ ṽᵀ`` placed at vertices ``idx``."""
+        idx = np.asarray(idx, dtype=np.int64)
+        h = homogeneous(self.V[idx])
+        blocks = weights[:, None, None] * h[:, :, None] * h[:, None, :]
+        rows = (4 * idx[:, None, None] + np.arange(4)[None, :, None]).repeat(4, axis=2)
+        cols = (4 * idx[:, None, None] + np.arange(4)[None, None, :]).repeat(4, axis=1)
+        return sp.csr_matrix(
+            (blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(4 * self.n, 4 * self.n)
+        )
+
+    def rhs(self, idx: np.ndarray, weights: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """(4n, 3) right-hand side ``Σ_k w_k ṽ_k p_kᵀ`` at vertices ``idx``."""
+        idx = np.asarray(idx, dtype=np.int64)
+        h = homogeneous(self.V[idx]) * weights[:, None]
+        prod = (h[:, :, None] * targets[:, None, :]).reshape(len(idx), 12)
+        out = np.empty((self.n, 12))
+        for k in range(12):
+            out[:, k] = np.bincount(idx, prod[:, k], minlength=self.n)
+        return out.reshape(4 * self.n, 3)
+
+
+def make_level(
+    V: np.ndarray, edges: np.ndarray, data_mask: np.ndarray, vertex_ids: np.ndarray
+) -> ResolutionLevel:
+    """Build a :class:`ResolutionLevel` from vertices (solver units) and smoothness edges."""
+    L = graph_laplacian(edges, len(V))
+    Lk = sp.kron(L, sp.identity(4, format="csr"), format="csr")
+    return ResolutionLevel(
+        V=np.ascontiguousarray(V, dtype=np.float64),
+        edges=edges,
+        smooth_kron=Lk,
+        data_mask=np.asarray(data_mask, dtype=bool),
+        vertex_ids=np.asarray(vertex_ids, dtype=np.int64),
+    )
+
+
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (n, 3) of a triangle mesh."""
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n = len(V)
+    idx = F.ravel()
+    N = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=n) for c in range(3)], axis=1)
+    norm = np.linalg.norm(N, axis=1, keepdims=True)
+    return N / np.maximum(norm, 1e-20)
