@@ -113,7 +113,7 @@ class FitResult:
     report: FitReport
 
 
-class FitCancelled(Exception):
+class FitCancelled(Exception):  # noqa: N818 (a cancellation, not an error)
     """Raised when a progress callback returns False."""
 
 

@@ -60,8 +60,9 @@ def build_hierarchy(
 ) -> Hierarchy:
     """Build the low-resolution level of a template mesh V (n, 3), F (m, 3).
 
-    ``n_low`` seeds (``required`` vertices among them); the upsampling blends a full vertex's region seed and its neighbouring
-    seeds with Gaussian weights of the Euclidean distance (σ = the mean seed spacing).
+    ``n_low`` seeds (``required`` vertices among them); the upsampling blends a full vertex's
+    region seed and its neighbouring seeds with Gaussian weights of the Euclidean distance
+    (σ = the mean seed spacing).
     """
     n = len(V)
     edges = unique_edges(F)

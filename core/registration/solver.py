@@ -44,6 +44,13 @@ class SolveStats:
     cg_iterations: int
 
 
+def factorize(M: sp.csc_matrix) -> spla.SuperLU:
+    """Sparse LU of the symmetric positive-definite M with diagonal pivoting (no fill blow-up)."""
+    return spla.splu(
+        M, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True, "DiagPivotThresh": 0.0}
+    )
+
+
 class AffineSolver:
     """Reusable solver for one resolution level."""
 
