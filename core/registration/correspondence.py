@@ -31,12 +31,14 @@ class Correspondences:
     weights : (n,) data weights w_i in [0, 1].
     distances : (n,) distance to the matched point (inf where none was compatible).
     on_boundary : (n,) bool, the matched point lies on a hole boundary.
+    point_ids : (n,) index of the matched scan point (meaningless where ``weights == 0``).
     """
 
     targets: np.ndarray
     weights: np.ndarray
     distances: np.ndarray
     on_boundary: np.ndarray
+    point_ids: np.ndarray
 
 
 class ScanIndex:
@@ -86,7 +88,7 @@ class ScanIndex:
             P = X - off[:, None] * Np
         on_b = has & self.boundary[jm]
         w = np.where(has & ~on_b, self.point_weight[jm], 0.0)
-        return Correspondences(targets=P, weights=w, distances=dist, on_boundary=on_b)
+        return Correspondences(targets=P, weights=w, distances=dist, on_boundary=on_b, point_ids=jm)
 
     def distance_to_points(self, X: np.ndarray) -> np.ndarray:
         """Distance (n,) from each of X (n, 3) to the nearest scan point."""

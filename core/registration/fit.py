@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -20,7 +20,7 @@ import numpy as np
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.correspondence import ScanIndex
-from core.registration.initialization import align_markers
+from core.registration.initialization import Similarity, align_markers
 from core.registration.multires import Hierarchy, build_hierarchy
 from core.registration.operators import (
     ResolutionLevel,
@@ -30,6 +30,7 @@ from core.registration.operators import (
     vertex_normals,
 )
 from core.registration.schedule import Schedule
+from core.registration.shape_prior import fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
@@ -101,7 +102,8 @@ class FitResult:
     ----------
     vertices : (13380, 3) float64 fitted template, metres, in the scan's (canonical) frame.
     faces : (26756, 3) template triangles.
-    affines : (13380, 3, 4) per-vertex affines mapping template metres to scan metres.
+    affines : (13380, 3, 4) per-vertex affines mapping the (personalised) template, metres, to
+        scan metres.
     data_weight : (13380,) final data-term weight of each vertex (0: filled by smoothness).
     report : :class:`FitReport`.
     """
@@ -178,6 +180,7 @@ def iter_fit(
     marker_far_distance: float = 0.10,
     n_low: int = 2500,
     unit_scale: float = 1000.0,
+    shape_prior: bool = True,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -190,6 +193,8 @@ def iter_fit(
     max_angle_deg : normals more than this apart are not compatible (paper: 90°).
     confidence_full_at : confidence at which the data weight reaches 1 (paper: 0.2).
     marker_far_distance : metres; markers farther than this from any scan point are dropped.
+    shape_prior : personalise the template first (``core.registration.shape_prior``); False runs
+        the paper's method from the plain template.
     """
     t_start = time.perf_counter()
     schedule = schedule or Schedule.paper()
@@ -231,10 +236,35 @@ def iter_fit(
     report.markers_used = align.used
     report.marker_residuals_m = align.residuals
     sim = align.similarity
-    report.scale = sim.s
+    marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
+    F_full = np.asarray(tpl.F, dtype=np.int64)
+    V_base = tpl.V
+    if shape_prior:
+        prior = fit_body_prior(
+            index,
+            tpl.V,
+            F_full,
+            marker_vid,
+            np.array([markers[k] for k in align.used]),
+            sim,
+            data_mask=ops.full.data_mask,
+            max_distance=max_distance,
+        )
+        report.scale = prior.similarity.s
+        report.notes.append(
+            f"body prior: {len(prior.coefficients)} shape coefficients, "
+            f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
+            f"data rms {prior.rms_data_m * 1000:.1f} mm"
+        )
+        # the affine fit starts from the posed, personalised body, already in the scan frame
+        V_base = prior.X
+        sim = Similarity(1.0, np.eye(3), np.zeros(3))
+    else:
+        report.scale = sim.s
 
     # Solver frame: millimetres (u) about the similarity-mapped template centre.
-    c_scan = sim.apply(ops.centre[None])[0]
+    cb = V_base.mean(axis=0)  # template-side centre, metres
+    c_scan = sim.apply(cb[None])[0]
 
     def to_solver(X: np.ndarray) -> np.ndarray:
         return (X - c_scan) * u
@@ -243,9 +273,10 @@ def iter_fit(
         return Xs / u + c_scan
 
     A0 = np.hstack([sim.s * sim.R, np.zeros((3, 1))])  # (3, 4) in solver units
-    marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
     marker_pos = to_solver(np.array([markers[k] for k in align.used]))
-    F_full = np.asarray(tpl.F, dtype=np.int64)
+    Vs = (V_base - cb) * u
+    full = replace(ops.full, V=Vs)
+    low = replace(ops.low, V=Vs[ops.low.vertex_ids])
     low_pos = {int(v): i for i, v in enumerate(ops.low.vertex_ids)}
 
     def x_from_affines(A: np.ndarray) -> np.ndarray:  # (n,3,4) -> (4n,3)
@@ -262,7 +293,7 @@ def iter_fit(
     weights_full = np.zeros(tpl.n_vertices)
     for si, st in enumerate(schedule.stages):
         t_stage = time.perf_counter()
-        want = ops.low if st.resolution == "low" else ops.full
+        want = low if st.resolution == "low" else full
         if level is not want:
             if level is None:
                 x = x_from_affines(np.broadcast_to(A0, (want.n, 3, 4)))
@@ -274,7 +305,7 @@ def iter_fit(
             solver = AffineSolver(level)
         assert solver is not None and x is not None and x_reg is not None
         solver.reset()
-        if level is ops.low:
+        if level is low:
             m_idx = np.array([low_pos[int(v)] for v in marker_vid], dtype=np.int64)
         else:
             m_idx = marker_vid
@@ -288,11 +319,11 @@ def iter_fit(
             Xs = apply_affines(A, level.V)
             if st.alpha > 0:
                 # normals of the deformed full mesh, sampled at this level's vertices
-                if level is ops.full:
+                if level is full:
                     X_full = Xs
                 else:
                     A_full = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
-                    X_full = apply_affines(A_full, ops.full.V)
+                    X_full = apply_affines(A_full, full.V)
                 N = vertex_normals(X_full, F_full)[level.vertex_ids]
                 corr = index.closest_compatible(
                     to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
@@ -328,7 +359,7 @@ def iter_fit(
             step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / u
             x = x_new
             en = energies(level, terms, x)
-            if level is ops.full:
+            if level is full:
                 weights_full = w
             yield Progress(si, n_stages, it, st.resolution, en, step, time.perf_counter() - t_start)
             if step < st.tolerance_m:
@@ -352,12 +383,12 @@ def iter_fit(
 
     assert level is not None and x is not None
     A = affines_from_x(x)
-    if level is not ops.full:
+    if level is not full:
         A = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
-    X = to_world(apply_affines(A, ops.full.V))
-    # affines in metres: x_world = A_s (u (v - c)) / u + c_scan
+    X = to_world(apply_affines(A, full.V))
+    # affines in metres: x_world = A_s (u (v - cb)) / u + c_scan
     A_m = A.copy()
-    A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], ops.centre)
+    A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], cb)
     d = MeshDistance(X, F_full).distances(scan.V)
     report.scan_to_fit_mean_m = float(np.mean(d))
     report.scan_to_fit_p95_m = float(np.percentile(d, 95))

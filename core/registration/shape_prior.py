@@ -1,0 +1,278 @@
+"""Body-prior initialisation: personalise and pose the template before the per-vertex affine fit.
+
+The affine-per-vertex energy says nothing about *where along the surface* a vertex belongs in
+smooth regions (thighs, back, shins): that comes from the markers and the template. A template
+that already has the subject's proportions and posture gives much better correspondences. We fit
+
+    X(c, ω, S) = S( LBS( V0 + U c ; ω ) )
+
+to the markers and the scan (point-to-plane) by damped Gauss–Newton with correspondence updates:
+``U c`` a linear shape basis (principal directions of the CC0 MakeHuman shape targets: sex, age,
+muscle, weight, height, proportions, regional targets) with a Gaussian prior on ``c``; ``ω`` small
+rotations of the major bones of the standard rig (linear blend skinning, joints re-placed on the
+shaped body); ``S`` a similarity. The affine fit then starts from that body. Once a shape space of
+registered bodies exists (paper §4) it can replace the basis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+from core.registration.correspondence import ScanIndex
+from core.registration.initialization import Similarity, umeyama
+from core.registration.operators import vertex_normals
+from core.rig import Rig, bone_transforms, joint_positions, load_rig
+
+# Bones whose rotation the prior estimates (the rest follow their parents).
+POSE_BONES = (
+    "spine03", "spine01", "neck01", "head",
+    "clavicle.L", "clavicle.R", "upperarm01.L", "upperarm01.R", "lowerarm01.L", "lowerarm01.R",
+    "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R",
+    "foot.L", "foot.R",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ShapeBasis:
+    """Orthonormal displacement basis over template vertices.
+
+    U : (n, 3, k) float64 basis displacements, metres per unit coefficient (orthonormal).
+    sigma : (k,) float64 prior standard deviation of each coefficient (metres).
+    """
+
+    U: np.ndarray
+    sigma: np.ndarray
+
+    @property
+    def k(self) -> int:
+        return self.U.shape[2]
+
+
+@cache
+def load_shape_basis(k: int = 60) -> ShapeBasis:
+    """The top-``k`` principal directions of the committed MakeHuman target library (cached)."""
+    from core.synth.targets import N_VERTICES, load_targets
+
+    lib = load_targets()
+    names = lib.names
+    rows, cols, vals = [], [], []
+    for j, name in enumerate(names):
+        idx, d = lib.sparse(name)
+        rows.append((3 * idx[:, None] + np.arange(3)).ravel())
+        cols.append(np.full(d.size, j))
+        vals.append(d.ravel())
+    D = np.zeros((N_VERTICES * 3, len(names)), dtype=np.float32)
+    D[np.concatenate(rows), np.concatenate(cols)] = np.concatenate(vals)
+    # principal directions via the small Gram matrix: D = U S Vᵀ, DᵀD = V S² Vᵀ
+    G = (D.T @ D).astype(np.float64)
+    ev, Vr = np.linalg.eigh(G)
+    order = np.argsort(ev)[::-1]
+    k = min(k, int(np.sum(ev > 1e-12 * ev.max())))
+    S = np.sqrt(ev[order[:k]])
+    U = (D @ Vr[:, order[:k]].astype(np.float32)).astype(np.float64) / S
+    # Targets are used at weights of order 1 (and combined); σ = singular value / sqrt(count).
+    sigma = S.astype(np.float64) / np.sqrt(len(names)) * 2.0
+    return ShapeBasis(U=U.reshape(N_VERTICES, 3, k), sigma=sigma)
+
+
+@dataclass
+class PriorFit:
+    """Result of :func:`fit_body_prior`: the posed, personalised template in the scan frame.
+
+    X : (n, 3) metres, scan frame. rest : (n, 3) the shaped body in the template frame, unposed.
+    """
+
+    X: np.ndarray
+    rest: np.ndarray
+    coefficients: np.ndarray
+    pose: dict[str, np.ndarray]
+    similarity: Similarity
+    iterations: int
+    rms_marker_m: float
+    rms_data_m: float
+
+
+def _skew_rows(v: np.ndarray) -> np.ndarray:
+    """(r, 3) vectors -> (r, 3, 3) matrices [v]_× (so [v]_× w = v × w)."""
+    Z = np.zeros((len(v), 3, 3))
+    Z[:, 0, 1], Z[:, 0, 2] = -v[:, 2], v[:, 1]
+    Z[:, 1, 0], Z[:, 1, 2] = v[:, 2], -v[:, 0]
+    Z[:, 2, 0], Z[:, 2, 1] = -v[:, 1], v[:, 0]
+    return Z
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """(3,) axis-angle -> (3, 3) rotation."""
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3)
+    K = _skew_rows((w / th)[None])[0]
+    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+
+class _Articulation:
+    """LBS of a shaped body with per-bone local rotations, and its Jacobians."""
+
+    def __init__(self, rig: Rig, bones: tuple[str, ...]) -> None:
+        self.rig = rig
+        self.bones = [rig.index(b) for b in bones]
+        self.names = bones
+        J = rig.n_joints
+        self.desc = np.zeros((len(bones), J), dtype=bool)
+        for a, name in enumerate(bones):
+            self.desc[a, rig.descendants(name)] = True
+        self.r = rig.skin_rows.astype(np.int64)
+        self.c = rig.skin_cols.astype(np.int64)
+        self.w = rig.skin_vals.astype(np.float64)
+
+    def pose(self, rest: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Posed vertices (n, 3) and the quantities the Jacobian needs."""
+        rig = self.rig
+        joints = joint_positions(rest, rig=rig)
+        rot = {rig.names[j]: local[a] for a, j in enumerate(self.bones)}
+        R, t = bone_transforms(rot, joints, rig=rig)
+        moved = np.einsum("eab,eb->ea", R[self.c], rest[self.r]) + t[self.c]
+        n = len(rest)
+        X = np.stack(
+            [np.bincount(self.r, self.w * moved[:, k], minlength=n) for k in range(3)], axis=1
+        )
+        Rblend = np.stack(
+            [np.bincount(self.r, self.w * R[self.c][:, i, j], minlength=n)
+             for i in range(3) for j in range(3)],
+            axis=1,
+        ).reshape(n, 3, 3)  # fmt: skip
+        posed_joints = np.einsum("jab,jb->ja", R, joints) + t
+        return X, {"moved": moved, "R": R, "Rblend": Rblend, "pj": posed_joints, "n": n}
+
+    def pose_jacobian(self, aux: dict, rows: np.ndarray) -> np.ndarray:
+        """d X[rows] / d ω (world-frame rotation increments): (len(rows), 3, 3·B)."""
+        n = aux["n"]
+        moved = aux["moved"]
+        sel = np.zeros(n, dtype=bool)
+        sel[rows] = True
+        e = sel[self.r]
+        r, c, w, mv = self.r[e], self.c[e], self.w[e], moved[e]
+        pos = np.full(n, -1)
+        pos[rows] = np.arange(len(rows))
+        rr = pos[r]
+        out = np.zeros((len(rows), 3, 3 * len(self.bones)))
+        for a, j in enumerate(self.bones):
+            m = self.desc[a, c]
+            if not m.any():
+                continue
+            Wa = np.bincount(rr[m], w[m], minlength=len(rows))
+            ya = np.stack(
+                [np.bincount(rr[m], w[m] * mv[m, k], minlength=len(rows)) for k in range(3)],
+                axis=1,
+            )
+            v = ya - Wa[:, None] * aux["pj"][j]
+            out[:, :, 3 * a : 3 * a + 3] = -_skew_rows(v)
+        return out
+
+
+def fit_body_prior(
+    index: ScanIndex,
+    V0: np.ndarray,
+    F: np.ndarray,
+    marker_vid: np.ndarray,
+    marker_pos: np.ndarray,
+    sim: Similarity,
+    *,
+    data_mask: np.ndarray | None = None,
+    basis: ShapeBasis | None = None,
+    iterations: int = 12,
+    max_distance: float = 0.10,
+    shape_prior_weight: float = 1.0,
+    pose_prior_weight: float = 1e-3,
+    marker_weight: float = 4.0,
+    subsample: int = 3,
+) -> PriorFit:
+    """Fit shape coefficients, bone rotations and a similarity to markers and scan.
+
+    Parameters
+    ----------
+    index : the scan (metres, canonical frame).
+    V0 : (n, 3) template, metres; F : (m, 3) its triangles.
+    marker_vid : (km,) template vertices of the markers; marker_pos : (km, 3) metres.
+    sim : initial similarity (template → scan), e.g. from the markers.
+    shape_prior_weight : weight of ‖c/σ‖² relative to the data (in units of one data row, mm²).
+    pose_prior_weight : weight of ‖ω‖² (radians²) relative to one data row in m².
+    marker_weight : weight of a marker coordinate relative to one point-to-plane data row.
+    """
+    basis = basis or load_shape_basis()
+    U, sigma = basis.U, basis.sigma
+    n, k = len(V0), basis.k
+    art = _Articulation(load_rig(), POSE_BONES)
+    B = len(POSE_BONES)
+    mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
+    sub = np.zeros(n, bool)
+    sub[::subsample] = True
+    c = np.zeros(k)
+    local = np.broadcast_to(np.eye(3), (B, 3, 3)).copy()
+    rows = np.zeros(0, dtype=np.int64)
+    P = np.zeros((0, 3))
+    w = np.zeros(0)
+    damping = 1e-3
+    rms_d = float("nan")
+    for it in range(iterations):
+        rest = V0 + U @ c
+        Xp, aux = art.pose(rest, local)
+        X = sim.apply(Xp)
+        # correspondences in the scan frame; residuals in the posed template frame
+        if it < 2:
+            md = max_distance
+        else:
+            md = max_distance * 0.5
+        N = vertex_normals(X, F)
+        corr = index.closest_compatible(X, N, max_distance=md, max_angle_deg=60.0, project=False)
+        rows = np.flatnonzero((corr.weights > 0) & mask & sub)
+        P = corr.targets[rows]
+        w = corr.weights[rows]
+        Np = index.normals[corr.point_ids[rows]] @ sim.R  # scan normals in the posed frame
+        Q = ((P - sim.t) @ sim.R) / sim.s
+        Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
+        allrows = np.r_[rows, marker_vid]
+        Jc_all = np.einsum("rab,rbk->rak", aux["Rblend"][allrows], U[allrows])  # (r, 3, k)
+        Jw_all = art.pose_jacobian(aux, allrows)  # (r, 3, 3B)
+        Jall = np.concatenate([Jc_all, Jw_all], axis=2)
+        nd = len(rows)
+        sw = np.sqrt(w)
+        A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
+        b_d = np.einsum("rc,rc->r", Np, Q - Xp[rows]) * sw
+        A_m = Jall[nd:].reshape(-1, k + 3 * B) * np.sqrt(marker_weight)
+        b_m = (Qm - Xp[marker_vid]).ravel() * np.sqrt(marker_weight)
+        rms_d = float(np.sqrt(np.mean(b_d**2 / np.maximum(w, 1e-9)))) if nd else float("nan")
+        # normal equations with priors (data rows are in metres: scale priors to mm² units)
+        H = A_d.T @ A_d + A_m.T @ A_m
+        g = A_d.T @ b_d + A_m.T @ b_m
+        prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_prior_weight)]
+        wvec = np.r_[c, np.zeros(3 * B)]
+        H += np.diag(prior)
+        g -= prior * wvec
+        H += damping * np.diag(np.diag(H))
+        delta = np.linalg.solve(H, g)
+        c = c + delta[:k]
+        for a in range(B):
+            dw = delta[k + 3 * a : k + 3 * a + 3]
+            j = art.bones[a]
+            p = art.rig.parents[j]
+            Rp = aux["R"][p] if p >= 0 else np.eye(3)
+            local[a] = Rp.T @ _rodrigues(dw) @ Rp @ local[a]
+        # similarity from markers and data pairs on the updated body
+        rest = V0 + U @ c
+        Xp, aux = art.pose(rest, local)
+        src = np.vstack([Xp[marker_vid], Xp[rows]])
+        dst = np.vstack([marker_pos, P])
+        sim = umeyama(src, dst, np.r_[np.full(len(marker_vid), marker_weight), w])
+    rest = V0 + U @ c
+    Xp, _ = art.pose(rest, local)
+    X = sim.apply(Xp)
+    rms_m = float(np.sqrt(np.mean(np.sum((X[marker_vid] - marker_pos) ** 2, axis=1))))
+    return PriorFit(
+        X=X, rest=rest, coefficients=c,
+        pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
+        similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
+    )  # fmt: skip
