@@ -1,0 +1,460 @@
+"""The ``bodyspace`` command line.
+
+Subcommands are registered by small ``register(subparsers)`` functions. The built-in ones (``fit``,
+``demo``) live here; others (``serve``, ``worker``, ``keys``, …) are added by an optional module
+``service/commands.py`` exposing ``register(subparsers)`` — it is imported when present (see
+:data:`PLUGIN_MODULES`). A registered parser sets ``func`` (``handler(args) -> int``) with
+``parser.set_defaults(func=...)``; heavy imports belong inside the handler so that ``bodyspace
+--help`` stays fast and one command's optional dependency cannot break another.
+
+Exit codes: 0 success; 1 unexpected internal error (rerun with ``--debug`` for the traceback);
+2 bad input or usage (domain errors from ``core``, missing files, unsupported output formats);
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+PROG = "bodyspace"
+OUT_FORMATS = (".ply", ".obj", ".glb")
+UNITS_CHOICES = ("auto", "m", "cm", "mm")
+UP_CHOICES = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
+EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "core" / "assets" / "examples"
+
+# Markerless fitting arrives with a later issue: flip this and fill in ``_fit_markerless``.
+MARKERLESS_AVAILABLE = False
+
+# Modules exposing ``register(subparsers)``, imported when present.
+PLUGIN_MODULES = ("service.commands",)
+
+
+class CliError(Exception):
+    """A user-facing problem: printed as one ``bodyspace: error: …`` line, exit code 2."""
+
+
+Registrar = Callable[[argparse._SubParsersAction], None]
+
+
+# --------------------------------------------------------------------------- small helpers
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("bodyspace")
+    except Exception:  # not installed (e.g. run from a source tree)
+        return "0+unknown"
+
+
+def _json_ready(obj: Any) -> Any:
+    """Recursively make ``obj`` strict-JSON ready (NaN/Inf -> None, numpy -> Python)."""
+    if isinstance(obj, dict):
+        return {str(k): _json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_ready(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_ready(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _json_ready(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _check_out_path(path: Path, formats: Sequence[str] = OUT_FORMATS, what: str = "--out") -> Path:
+    """Fail early (before a long fit) on an unsupported extension or an unwritable folder."""
+    ext = path.suffix.lower()
+    if ext not in formats:
+        raise CliError(
+            f"{what} {str(path)!r}: unsupported extension {ext or '(none)'!r}; "
+            f"use {', '.join(formats)}"
+        )
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise CliError(f"{what} {str(path)!r}: folder {str(folder)!r} does not exist")
+    if path.is_dir():
+        raise CliError(f"{what} {str(path)!r} is a directory")
+    import os
+
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise CliError(f"{what} {str(path)!r}: folder {str(folder)!r} is not writable")
+    return path
+
+
+def _check_in_path(path: Path, what: str) -> Path:
+    if not path.exists():
+        raise CliError(f"{what} not found: {str(path)!r}")
+    if path.is_dir():
+        raise CliError(f"{what} {str(path)!r} is a directory, not a file")
+    return path
+
+
+class ProgressBar:
+    """A dependency-free text progress bar on stderr, fed by ``core.registration`` Progress.
+
+    On a terminal one line is redrawn in place; otherwise (logs, pipes) one line is printed per
+    stage so that logs stay short.
+    """
+
+    def __init__(self, stream: TextIO | None = None, width: int = 24, enabled: bool = True):
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.enabled = enabled
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._last_stage = -1
+        self._drawn = False
+
+    def start(self, message: str = "fit: aligning markers and the body prior ...") -> None:
+        """Say that work has begun (the first progress report comes after initialisation)."""
+        if self.enabled:
+            self.stream.write(message + ("\r" if self.tty else "\n"))
+            self.stream.flush()
+
+    def __call__(self, p: Any) -> None:
+        if not self.enabled:
+            return None
+        frac = float(p.fraction)
+        filled = round(frac * self.width)
+        bar = "#" * filled + "-" * (self.width - filled)
+        total = p.energy.get("total", float("nan"))
+        line = (
+            f"fit [{bar}] stage {p.stage + 1}/{p.n_stages} ({p.resolution}) "
+            f"iter {p.iteration + 1:2d}  E={total:.4g}  step={p.max_step_m * 1000:.2f} mm  "
+            f"{p.elapsed_s:5.1f} s"
+        )
+        if self.tty:
+            self.stream.write("\r\x1b[K" + line)
+            self._drawn = True
+        elif p.stage != self._last_stage:
+            self.stream.write(line + "\n")
+        self._last_stage = p.stage
+        self.stream.flush()
+        return None
+
+    def close(self) -> None:
+        if self.enabled and self.tty and self._drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+        self._drawn = False
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+def _fit_markerless(scan: Any, **options: Any) -> Any:
+    """Fit without markers: not available yet (a later issue replaces this function)."""
+    raise CliError(
+        "markerless fitting is not available yet; give a marker file with --markers "
+        "(CSV name,x,y,z or JSON)"
+    )
+
+
+def run_fit(
+    scan_path: Path,
+    markers_path: Path | None,
+    *,
+    units: str = "auto",
+    up: str = "auto",
+    fast: bool = False,
+    quiet: bool = False,
+) -> tuple[Any, Any, dict[str, Any]]:
+    """Load a scan (and markers), fit it and time each step.
+
+    Returns
+    -------
+    (scan, FitResult, info)
+        ``info`` holds the inputs, the frame and timings for the report.
+    """
+    from core.io import load_scan
+    from core.registration.fit import fit
+    from core.registration.schedule import Schedule
+
+    t0 = time.perf_counter()
+    scan, markers = load_scan(scan_path, units=units, up=up, markers_path=markers_path)
+    t_load = time.perf_counter() - t0
+    schedule = Schedule.fast() if fast else Schedule.paper()
+    bar = ProgressBar(enabled=not quiet)
+    t1 = time.perf_counter()
+    bar.start()
+    try:
+        if markers is None:
+            result = _fit_markerless(scan, schedule=schedule, callback=bar)
+        else:
+            result = fit(scan, markers, schedule=schedule, callback=bar)
+    finally:
+        bar.close()
+    t_fit = time.perf_counter() - t1
+    frame = scan.frame
+    info: dict[str, Any] = {
+        "bodyspace_version": _version(),
+        "inputs": {
+            "scan": str(scan_path),
+            "markers": None if markers_path is None else str(markers_path),
+            "units_option": units,
+            "up_option": up,
+        },
+        "frame": {
+            "units": None if frame is None else frame.units,
+            "up": None if frame is None else frame.up,
+            "detected": None if frame is None else bool(frame.detected),
+            "scale_to_m": None if frame is None else float(frame.scale),
+        },
+        "schedule": "fast" if fast else "paper",
+        "timing_s": {"load": t_load, "fit": t_fit},
+    }
+    return scan, result, info
+
+
+def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, info: dict) -> dict:
+    """Write the fitted body to each of ``outs`` and (optionally) the JSON report."""
+    from core.io import write_mesh
+    from core.io.writers import atomic_write
+
+    t0 = time.perf_counter()
+    for out in outs:
+        write_mesh(out, result.vertices, result.faces)
+    info["outputs"] = [str(p) for p in outs]
+    info["timing_s"]["write"] = time.perf_counter() - t0
+    info["timing_s"]["total"] = sum(v for v in info["timing_s"].values())
+    report = {**result.report.to_dict(), **info}
+    if report_path is not None:
+        text = json.dumps(_json_ready(report), indent=2, allow_nan=False)
+        atomic_write(report_path, (text + "\n").encode("utf-8"))
+    return report
+
+
+def _mm(x: float) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x * 1000:.1f} mm"
+
+
+def summary_lines(result: Any, info: dict) -> list[str]:
+    """A short human summary of a fit (printed to stdout)."""
+    r = result.report
+    t = info["timing_s"]
+    fr = info["frame"]
+    how = "detected" if fr.get("detected") else "given"
+    lines = [
+        f"fitted {Path(info['inputs']['scan']).name} in {t['total']:.1f} s "
+        f"(load {t['load']:.1f} s, fit {t['fit']:.1f} s, write {t['write']:.1f} s; "
+        f"{info['schedule']} schedule)",
+        f"  scan: {r.scan_vertices:,} points, {r.scan_faces:,} triangles; "
+        f"units {fr['units']}, up {fr['up']} ({how})",
+        f"  scan->fit distance: mean {_mm(r.scan_to_fit_mean_m)}, p95 {_mm(r.scan_to_fit_p95_m)}; "
+        f"template vertices without scan data: {r.no_data_fraction * 100:.1f} %",
+    ]
+    dropped = r.markers_dropped
+    m = f"  markers: {len(r.markers_used)} used, {len(dropped)} dropped"
+    if dropped:
+        m += " (" + ", ".join(dropped[:8]) + (", ..." if len(dropped) > 8 else "") + ")"
+    lines.append(m)
+    lines.extend(f"  warning: {w}" for w in r.warnings)
+    lines.append("  wrote " + ", ".join(info.get("outputs", [])))
+    return lines
+
+
+# --------------------------------------------------------------------------- `fit`
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    scan_path = _check_in_path(Path(args.scan), "scan file")
+    markers_path = None
+    if args.markers is not None:
+        markers_path = _check_in_path(Path(args.markers), "marker file")
+    elif not MARKERLESS_AVAILABLE:
+        _fit_markerless(None)  # raises the "not available yet" error before any work
+    out = _check_out_path(Path(args.out))
+    report_path = None
+    if args.report is not None:
+        report_path = _check_out_path(Path(args.report), (".json",), "--report")
+    _, result, info = run_fit(
+        scan_path, markers_path, units=args.units, up=args.up, fast=args.fast, quiet=args.quiet
+    )
+    write_outputs(result, [out], report_path, info)
+    if report_path is not None:
+        info["outputs"].append(str(report_path))
+    if not args.quiet:
+        print("\n".join(summary_lines(result, info)))
+    return 0
+
+
+def register_fit(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "fit",
+        help="fit the template body to a scan with markers",
+        description="Fit the template body to a raw scan guided by anatomical markers and "
+        "write the fitted body (template vertex order, metres, +Y up).",
+    )
+    p.add_argument("scan", metavar="SCAN", help="scan file: .ply, .obj, .stl, .npz or .xyz")
+    p.add_argument(
+        "--markers",
+        metavar="MARKERS",
+        help="marker file, CSV name,x,y,z (header row) or JSON {name: [x, y, z]}, "
+        "in the scan's units and axes",
+    )
+    p.add_argument("--out", required=True, metavar="FIT", help="fitted body: .ply, .obj or .glb")
+    p.add_argument("--report", metavar="REPORT.json", help="write the JSON fit report here")
+    p.add_argument("--units", choices=UNITS_CHOICES, default="auto", help="scan units")
+    p.add_argument("--up", choices=UP_CHOICES, default="auto", help="scan up axis")
+    p.add_argument("--fast", action="store_true", help="shorter schedule (previews, tests)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    p.set_defaults(func=_cmd_fit)
+
+
+# --------------------------------------------------------------------------- `demo`
+
+
+def truth_error(result: Any, scan: Any, truth_file: np.ndarray) -> dict[str, float]:
+    """Per-vertex distance (metres) between the fit and the truth body (both template order)."""
+    truth = np.asarray(truth_file, dtype=np.float64)
+    if scan.frame is not None:
+        truth = scan.frame.to_canonical(truth)
+    d = np.linalg.norm(result.vertices - truth, axis=1)
+    return {
+        "mean_m": float(d.mean()),
+        "p95_m": float(np.percentile(d, 95)),
+        "max_m": float(d.max()),
+    }
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    ex = EXAMPLES_DIR
+    scan_path = _check_in_path(ex / "example_scan.ply", "bundled example scan")
+    markers_path = _check_in_path(ex / "example_markers.csv", "bundled example markers")
+    truth_path = ex / "example_truth.npz"
+    out_dir = Path(args.out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CliError(f"cannot create --out-dir {str(out_dir)!r}: {e.strerror}") from None
+    outs = [_check_out_path(out_dir / "fit.glb"), _check_out_path(out_dir / "fit.ply")]
+    report_path = out_dir / "report.json"
+    if not args.quiet:
+        print(f"demo: fitting the bundled example {scan_path.name} with {markers_path.name}")
+    scan, result, info = run_fit(scan_path, markers_path, fast=args.fast, quiet=args.quiet)
+    if truth_path.exists():
+        with np.load(truth_path) as z:
+            info["truth_error_m"] = truth_error(result, scan, z["vertices"])
+    write_outputs(result, outs, report_path, info)
+    info["outputs"].append(str(report_path))
+    if not args.quiet:
+        lines = summary_lines(result, info)
+        te = info.get("truth_error_m")
+        if te is not None:
+            lines.insert(
+                -1,
+                f"  fit->truth correspondence error: mean {_mm(te['mean_m'])}, "
+                f"p95 {_mm(te['p95_m'])}, max {_mm(te['max_m'])}",
+            )
+        print("\n".join(lines))
+    return 0
+
+
+def register_demo(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "demo",
+        help="fit the bundled example scan (no setup needed)",
+        description="Fit the bundled example scan (simulated, millimetres, Z-up) with its "
+        "markers; write fit.glb, fit.ply and report.json; compare with the bundled truth.",
+    )
+    p.add_argument("--out-dir", default="out/demo", metavar="DIR", help="default: ./out/demo")
+    p.add_argument("--fast", action="store_true", help="shorter schedule")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    p.set_defaults(func=_cmd_demo)
+
+
+# --------------------------------------------------------------------------- parser, main
+
+BUILTIN_COMMANDS: list[Registrar] = [register_fit, register_demo]
+
+
+def _plugin_registrars() -> list[Registrar]:
+    """``register`` of each module in :data:`PLUGIN_MODULES` that exists."""
+    out: list[Registrar] = []
+    for name in PLUGIN_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            if e.name == name:  # the module itself is absent: nothing to register
+                continue
+            raise
+        out.append(mod.register)
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Register a template human body to raw 3D body scans (Allen et al. 2003).",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for register in [*BUILTIN_COMMANDS, *_plugin_registrars()]:
+        register(sub)
+    return parser
+
+
+def _error(msg: str) -> None:
+    msg = " ".join(str(msg).split())  # one line
+    print(f"{PROG}: error: {msg}", file=sys.stderr)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``bodyspace`` console script; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv  # accepted anywhere on the line, for every subcommand
+    argv = [a for a in argv if a != "--debug"]
+    try:
+        parser = build_parser()
+    except Exception as e:  # a broken plugin module
+        if debug:
+            traceback.print_exc()
+        _error(f"cannot set up the command line: {type(e).__name__}: {e}")
+        return 1
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    from core.errors import BodyspaceError
+
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        _error("interrupted")
+        return 130
+    except (CliError, BodyspaceError) as e:
+        if debug:
+            traceback.print_exc()
+        _error(getattr(e, "message", None) or str(e))
+        return 2
+    except OSError as e:  # missing or unwritable files
+        if debug:
+            traceback.print_exc()
+        where = f": {e.filename!r}" if e.filename else ""
+        _error(f"{e.strerror or e}{where}")
+        return 2
+    except Exception as e:
+        if debug:
+            traceback.print_exc()
+        _error(
+            f"unexpected {type(e).__name__}: {e} (this is a bug; rerun with --debug for the "
+            "traceback)"
+        )
+        return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
