@@ -120,8 +120,9 @@ class ProgressBar:
     def start(self, message: str = "fit: aligning markers and the body prior ...") -> None:
         """Say that work has begun (the first progress report comes after initialisation)."""
         if self.enabled:
-            self.stream.write(message + ("\r" if self.tty else "\n"))
+            self.stream.write(message + ("" if self.tty else "\n"))
             self.stream.flush()
+            self._drawn = self.tty
 
     def __call__(self, p: Any) -> None:
         if not self.enabled:
@@ -144,9 +145,10 @@ class ProgressBar:
         self.stream.flush()
         return None
 
-    def close(self) -> None:
+    def close(self, ok: bool = True) -> None:
+        """End the bar: keep the last line after success, erase it after a failure."""
         if self.enabled and self.tty and self._drawn:
-            self.stream.write("\n")
+            self.stream.write("\n" if ok else "\r\x1b[K")
             self.stream.flush()
         self._drawn = False
 
@@ -189,13 +191,15 @@ def run_fit(
     bar = ProgressBar(enabled=not quiet)
     t1 = time.perf_counter()
     bar.start()
+    ok = False
     try:
         if markers is None:
             result = _fit_markerless(scan, schedule=schedule, callback=bar)
         else:
             result = fit(scan, markers, schedule=schedule, callback=bar)
+        ok = True
     finally:
-        bar.close()
+        bar.close(ok)
     t_fit = time.perf_counter() - t1
     frame = scan.frame
     info: dict[str, Any] = {
