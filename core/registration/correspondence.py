@@ -61,15 +61,18 @@ class ScanIndex:
         max_angle_deg: float = 90.0,
         k: int = 12,
         project: bool = True,
+        smooth_radius: float = 0.003,
     ) -> Correspondences:
         """Match deformed template vertices X (n, 3) with unit normals N (n, 3) to the scan.
 
         Takes, among the ``k`` nearest scan points within ``max_distance``, the nearest whose
-        normal is within ``max_angle_deg`` of the template normal.
+        normal is within ``max_angle_deg`` of the template normal. With ``project``, the target
+        is X moved along that point's normal onto the locally averaged scan surface
+        (``smooth_radius``, metres, 0 for the single matched tangent plane).
         """
         n = len(X)
         k = max(1, min(k, len(self.points)))
-        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=-1)
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance)
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)
@@ -83,8 +86,17 @@ class ScanIndex:
         dist = np.where(has, d[np.arange(n), first], np.inf)
         P = self.points[jm]
         if project:
+            # Target: X moved along the matched normal onto the local surface, whose offset is
+            # a Gaussian-weighted mean over the compatible neighbours' tangent planes (this
+            # averages the scanner's range noise instead of fitting it).
             Np = self.normals[jm]
-            off = np.einsum("nc,nc->n", X - P, Np)
+            offs = np.einsum("nkc,nkc->nk", X[:, None, :] - self.points[jj], self.normals[jj])
+            dk = np.where(ok, d, np.inf)
+            d0 = np.where(has, dist, 0.0)[:, None]
+            gw = np.where(ok, np.exp(-(((dk - d0) / max(smooth_radius, 1e-9)) ** 2)), 0.0)
+            gw_sum = np.maximum(gw.sum(axis=1), 1e-12)
+            off = np.sum(gw * offs, axis=1) / gw_sum
+            off = np.where(has, off, 0.0)
             P = X - off[:, None] * Np
         on_b = has & self.boundary[jm]
         w = np.where(has & ~on_b, self.point_weight[jm], 0.0)

@@ -68,7 +68,7 @@ def align_markers(
     *,
     min_markers: int = 3,
     outlier_distance: float = 0.25,
-    warn_distance: float = 0.08,
+    warn_distance: float = 0.15,
 ) -> MarkerAlignment:
     """Similarity from template landmark positions to markers (both name -> (3,), metres).
 

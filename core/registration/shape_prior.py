@@ -139,13 +139,19 @@ class _Articulation:
         X = np.stack(
             [np.bincount(self.r, self.w * moved[:, k], minlength=n) for k in range(3)], axis=1
         )
-        Rblend = np.stack(
-            [np.bincount(self.r, self.w * R[self.c][:, i, j], minlength=n)
-             for i in range(3) for j in range(3)],
-            axis=1,
-        ).reshape(n, 3, 3)  # fmt: skip
         posed_joints = np.einsum("jab,jb->ja", R, joints) + t
-        return X, {"moved": moved, "R": R, "Rblend": Rblend, "pj": posed_joints, "n": n}
+        return X, {"moved": moved, "R": R, "pj": posed_joints, "n": n}
+
+    def blended_rotations(self, aux: dict, rows: np.ndarray) -> np.ndarray:
+        """Skin-weighted bone rotations Σ_b w_ib R_b at vertices ``rows``: (len(rows), 3, 3)."""
+        n = aux["n"]
+        pos = np.full(n, -1)
+        pos[rows] = np.arange(len(rows))
+        e = pos[self.r] >= 0
+        rr, c, w = pos[self.r[e]], self.c[e], self.w[e]
+        Rc = aux["R"][c].reshape(-1, 9) * w[:, None]
+        out = np.stack([np.bincount(rr, Rc[:, q], minlength=len(rows)) for q in range(9)], axis=1)
+        return out.reshape(len(rows), 3, 3)
 
     def pose_jacobian(self, aux: dict, rows: np.ndarray) -> np.ndarray:
         """d X[rows] / d ω (world-frame rotation increments): (len(rows), 3, 3·B)."""
@@ -217,15 +223,11 @@ def fit_body_prior(
     w = np.zeros(0)
     damping = 1e-3
     rms_d = float("nan")
+    Xp, aux = art.pose(V0, local)
     for it in range(iterations):
-        rest = V0 + U @ c
-        Xp, aux = art.pose(rest, local)
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
-        if it < 2:
-            md = max_distance
-        else:
-            md = max_distance * 0.5
+        md = max_distance if it < 2 else max_distance * 0.5
         N = vertex_normals(X, F)
         corr = index.closest_compatible(X, N, max_distance=md, max_angle_deg=60.0, project=False)
         rows = np.flatnonzero((corr.weights > 0) & mask & sub)
@@ -235,7 +237,8 @@ def fit_body_prior(
         Q = ((P - sim.t) @ sim.R) / sim.s
         Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
         allrows = np.r_[rows, marker_vid]
-        Jc_all = np.einsum("rab,rbk->rak", aux["Rblend"][allrows], U[allrows])  # (r, 3, k)
+        Rb = art.blended_rotations(aux, allrows)
+        Jc_all = np.einsum("rab,rbk->rak", Rb, U[allrows])  # (r, 3, k)
         Jw_all = art.pose_jacobian(aux, allrows)  # (r, 3, 3B)
         Jall = np.concatenate([Jc_all, Jw_all], axis=2)
         nd = len(rows)
@@ -268,7 +271,6 @@ def fit_body_prior(
         dst = np.vstack([marker_pos, P])
         sim = umeyama(src, dst, np.r_[np.full(len(marker_vid), marker_weight), w])
     rest = V0 + U @ c
-    Xp, _ = art.pose(rest, local)
     X = sim.apply(Xp)
     rms_m = float(np.sqrt(np.mean(np.sum((X[marker_vid] - marker_pos) ** 2, axis=1))))
     return PriorFit(

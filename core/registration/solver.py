@@ -2,9 +2,8 @@
 
 With correspondences fixed, E = α·E_d + β·E_s + γ·E_m is a sparse linear least-squares problem in
 the affines, separable over the three output coordinates (one shared matrix, three right-hand
-sides). The normal-equation matrix is factorised at the first iteration of a stage; later
-iterations of the stage, whose matrices differ only in the data weights, are solved by conjugate
-gradients preconditioned with that factorisation, warm-started from the previous affines.
+sides). The normal-equation matrix is factorised once and reused across correspondence updates
+while the data weights stay the same (see :class:`AffineSolver`).
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from core.registration.operators import ResolutionLevel
+from core.registration.operators import ResolutionLevel, homogeneous
 
 REGULARIZATION = 1e-8  # ε‖T − T₀‖², relative to the mean diagonal: keeps tiny cases well-posed
 
@@ -41,7 +40,7 @@ class SystemTerms:
 @dataclass
 class SolveStats:
     factorized: bool
-    cg_iterations: int
+    changed_fraction: float  # share of vertices whose data weight changed since the factorisation
 
 
 def factorize(M: sp.csc_matrix) -> spla.SuperLU:
@@ -52,76 +51,75 @@ def factorize(M: sp.csc_matrix) -> spla.SuperLU:
 
 
 class AffineSolver:
-    """Reusable solver for one resolution level."""
+    """Reusable solver for one resolution level.
 
-    def __init__(self, level: ResolutionLevel, *, cg_tol: float = 1e-7, cg_maxiter: int = 60):
+    The factorisation is reused while the data weights stay (almost) the same: only the targets
+    change from one correspondence update to the next. When fewer than ``refactor_fraction`` of
+    the vertices changed weight, vertices that lost their correspondence keep their factorised
+    weight with their current position as target (a proximal step), and vertices that gained one
+    wait for the next factorisation. At convergence (weights stable) the solution minimises the
+    paper's energy exactly.
+    """
+
+    def __init__(self, level: ResolutionLevel, *, refactor_fraction: float = 0.01) -> None:
         self.level = level
-        self.cg_tol = cg_tol
-        self.cg_maxiter = cg_maxiter
+        self.refactor_fraction = refactor_fraction
         self._lu: spla.SuperLU | None = None
+        self._w: np.ndarray | None = None  # per-vertex data weights of the factorisation
+        self._key: tuple[float, float, float] | None = None
 
     def reset(self) -> None:
         """Forget the factorisation (call at the start of a stage)."""
         self._lu = None
+        self._w = None
+        self._key = None
 
-    def assemble(self, t: SystemTerms, x_reg: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
-        """Normal equations ``M x = b`` for the three coordinates: M (4n, 4n), b (4n, 3)."""
+    def _matrix(self, t: SystemTerms, w: np.ndarray) -> tuple[sp.csc_matrix, float]:
         lv = self.level
         M = t.beta * lv.smooth_kron
-        b = np.zeros((4 * lv.n, 3))
-        if t.alpha > 0 and len(t.data_idx):
-            M = M + t.alpha * lv.gram(t.data_idx, t.data_w)
-            b += t.alpha * lv.rhs(t.data_idx, t.data_w, t.data_targets)
+        idx = np.flatnonzero(w > 0)
+        if t.alpha > 0 and len(idx):
+            M = M + t.alpha * lv.gram(idx, w[idx])
         if t.gamma > 0 and len(t.marker_idx):
-            ones = np.ones(len(t.marker_idx))
-            M = M + t.gamma * lv.gram(t.marker_idx, ones)
-            b += t.gamma * lv.rhs(t.marker_idx, ones, t.marker_targets)
+            M = M + t.gamma * lv.gram(t.marker_idx, np.ones(len(t.marker_idx)))
         eps = REGULARIZATION * max(float(M.diagonal().mean()), 1e-12)
-        M = (M + eps * sp.identity(4 * lv.n)).tocsc()
-        b += eps * x_reg
-        return M, b
+        return (M + eps * sp.identity(4 * lv.n)).tocsc(), eps
 
     def solve(
         self, t: SystemTerms, x0: np.ndarray, x_reg: np.ndarray
     ) -> tuple[np.ndarray, SolveStats]:
-        """Minimise the energy; x0 (4n, 3) warm start, x_reg (4n, 3) regulariser target."""
-        M, b = self.assemble(t, x_reg)
-        if self._lu is None:
-            self._lu = spla.splu(
-                M,
-                permc_spec="MMD_AT_PLUS_A",
-                options={"SymmetricMode": True, "DiagPivotThresh": 0.0},
-            )
-            return self._lu.solve(b), SolveStats(factorized=True, cg_iterations=0)
-        lu = self._lu
-        P = spla.LinearOperator(M.shape, matvec=lambda r: lu.solve(r), dtype=np.float64)
-        out = np.empty_like(x0)
-        total = 0
-        for c in range(3):
-            count = [0]
-
-            def cb(_xk: np.ndarray, count: list[int] = count) -> None:
-                count[0] += 1
-
-            xc, info = spla.cg(
-                M,
-                b[:, c],
-                x0=x0[:, c],
-                rtol=self.cg_tol,
-                maxiter=self.cg_maxiter,
-                M=P,
-                callback=cb,
-            )
-            total += count[0]
-            if info != 0:  # did not converge: refactorise and solve directly
-                self._lu = spla.splu(
-                    M,
-                    permc_spec="MMD_AT_PLUS_A",
-                    options={"SymmetricMode": True, "DiagPivotThresh": 0.0},
-                )
-                return self._lu.solve(b), SolveStats(factorized=True, cg_iterations=total)
-            out[:, c] = xc
-        return out, SolveStats(factorized=False, cg_iterations=total)
+        """Minimise the energy for fixed correspondences; x0 (4n, 3) the current affines,
+        x_reg (4n, 3) the regulariser's target."""
+        lv = self.level
+        w_new = np.zeros(lv.n)
+        w_new[t.data_idx] = t.data_w if t.alpha > 0 else 0.0
+        targets = np.zeros((lv.n, 3))
+        targets[t.data_idx] = t.data_targets
+        key = (t.alpha, t.beta, t.gamma)
+        changed = 1.0
+        if self._w is not None and self._key == key:
+            changed = float(np.mean(np.abs(w_new - self._w) > 0.05))
+        factorized = False
+        if self._lu is None or changed > self.refactor_fraction:
+            M, self._eps = self._matrix(t, w_new)
+            self._lu = factorize(M)
+            self._w, self._key = w_new, key
+            factorized = True
+        w = self._w
+        assert w is not None
+        # vertices factorised with a weight but without a match now: stay where they are
+        lost = (w > 0) & (w_new <= 0)
+        if lost.any():
+            X = np.einsum("nk,nkc->nc", homogeneous(lv.V[lost]), x0.reshape(lv.n, 4, 3)[lost])
+            targets[lost] = X
+        b = self._eps * x_reg
+        idx = np.flatnonzero(w > 0)
+        if t.alpha > 0 and len(idx):
+            b = b + t.alpha * lv.rhs(idx, w[idx], targets[idx])
+        if t.gamma > 0 and len(t.marker_idx):
+            ones = np.ones(len(t.marker_idx))
+            b = b + t.gamma * lv.rhs(t.marker_idx, ones, t.marker_targets)
+        return self._lu.solve(b), SolveStats(factorized=factorized, changed_fraction=changed)
 
 
 def energies(level: ResolutionLevel, t: SystemTerms, x: np.ndarray) -> dict[str, float]:
