@@ -1,0 +1,109 @@
+"""The FastAPI application: ``create_app()``; ``uvicorn service.app:app`` serves it.
+
+On start it migrates the database, registers the local API key (embedded mode: one is created and
+printed on the first start unless ``BODYSPACE_API_KEY`` gives it), and starts the job runner.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
+
+from service import errors
+from service.auth import ensure_local_key
+from service.blobs import BlobStore
+from service.db import migrate, ping, session_scope
+from service.jobs import make_runner
+from service.routes import router
+from service.schemas import ErrorResponse, Health
+from service.settings import Settings, get_settings
+
+log = logging.getLogger("bodyspace.service")
+API_VERSION = "1.0.0"
+
+
+def _operation_id(route: APIRoute) -> str:
+    return route.name
+
+
+def _startup(settings: Settings) -> None:
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    migrate(settings)
+    with session_scope(settings) as s:
+        key = ensure_local_key(s, settings.api_key) if not settings.distributed else None
+        if settings.distributed and settings.api_key:
+            ensure_local_key(s, settings.api_key)
+    if key:
+        msg = f"created the local API key (shown once; tenant 'local'): {key}"
+        log.warning(msg)
+        print(f"bodyspace: {msg}", flush=True)
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    settings: Settings = app.state.settings
+    await run_in_threadpool(_startup, settings)
+    app.state.store = BlobStore(settings.resolved_blob_dir)
+    runner = make_runner(settings)
+    await run_in_threadpool(runner.start)
+    app.state.runner = runner
+    mode = "distributed" if settings.distributed else "embedded"
+    log.info("bodyspace API ready (%s mode)", mode)
+    try:
+        yield
+    finally:
+        runner.shutdown()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app (settings default to :func:`get_settings`)."""
+    app = FastAPI(
+        title="bodyspace",
+        version=API_VERSION,
+        summary="Fit a template body to raw 3D body scans.",
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+    )
+    app.state.settings = settings or get_settings()
+    errors.install(app)
+    app.include_router(router)
+
+    @app.get("/healthz", response_model=Health, tags=["health"])
+    def healthz() -> Health:
+        """Liveness: the process answers."""
+        return Health(status="ok")
+
+    @app.get(
+        "/readyz",
+        response_model=Health,
+        responses={503: {"model": ErrorResponse, "description": "a dependency is down"}},
+        tags=["health"],
+    )
+    def readyz(request: Request) -> Health | JSONResponse:
+        """Readiness: the database and the broker (or the local pool) are reachable."""
+        st: Settings = request.app.state.settings
+        checks: dict[str, str] = {}
+        ok = True
+        for name, fn in (("database", lambda: ping(st)), ("jobs", request.app.state.runner.check)):
+            try:
+                fn()
+                checks[name] = "ok"
+            except Exception as e:
+                ok = False
+                checks[name] = f"{type(e).__name__}: {e}"[:300]
+        mode = "distributed" if st.distributed else "embedded"
+        if not ok:
+            body = errors.error_body("not_ready", "a dependency is not reachable", checks)
+            return JSONResponse(body, 503)
+        return Health(status="ok", mode=mode, checks=checks)
+
+    return app
+
+
+app = create_app()

@@ -1,0 +1,69 @@
+"""FastAPI dependencies: settings, database session, blob store, job runner, the caller's tenant."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import Depends, Request, Security
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+
+from service.auth import tenant_for_key
+from service.blobs import BlobStore
+from service.db import session_scope
+from service.errors import ApiError
+from service.jobs import JobRunner
+from service.settings import Settings
+
+_bearer = HTTPBearer(auto_error=False, description="Authorization: Bearer KEY")
+_api_key = APIKeyHeader(name="X-API-Key", auto_error=False, description="X-API-Key: KEY")
+
+
+def get_app_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_store(request: Request) -> BlobStore:
+    return request.app.state.store
+
+
+def get_runner(request: Request) -> JobRunner:
+    return request.app.state.runner
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    with session_scope(request.app.state.settings) as s:
+        yield s
+
+
+def get_tenant(
+    request: Request,
+    bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
+    api_key: Annotated[str | None, Security(_api_key)],
+) -> str:
+    """The tenant id of the request's API key (401 when missing or invalid)."""
+    key = bearer.credentials if bearer is not None else api_key
+    if not key:
+        raise ApiError("missing_api_key")
+    with session_scope(request.app.state.settings) as s:
+        tenant = tenant_for_key(s, key.strip())
+    if tenant is None:
+        raise ApiError("invalid_api_key")
+    return tenant
+
+
+def require_json(request: Request) -> None:
+    """415 unless the body is JSON."""
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "application/json" and not ctype.endswith("+json"):
+        raise ApiError(
+            "unsupported_media_type", f"expected application/json, got {ctype or 'none'!r}"
+        )
+
+
+TenantId = Annotated[str, Depends(get_tenant)]
+SessionDep = Annotated[Session, Depends(get_session)]
+StoreDep = Annotated[BlobStore, Depends(get_store)]
+RunnerDep = Annotated[JobRunner, Depends(get_runner)]
+SettingsDep = Annotated[Settings, Depends(get_app_settings)]

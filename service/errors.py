@@ -1,0 +1,135 @@
+"""The one error table: every error the API returns, and how ``core`` exceptions map to it.
+
+Every error response has the shape ``{"error": {"code": str, "message": str, "details": {}}}``.
+``core`` raises domain errors (``core.errors``) that carry their own stable ``code``; this module
+decides their HTTP status. Service-side errors are raised as :class:`ApiError` with a code from
+:data:`API_ERRORS`.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from core.errors import BodyspaceError, FitError, InputFormatError, MarkerError, UnitsError
+
+log = logging.getLogger("bodyspace.service")
+
+#: core exception class -> HTTP status (the code comes from the exception's ``code``).
+CORE_ERRORS: dict[type[BodyspaceError], int] = {
+    InputFormatError: 422,
+    UnitsError: 422,
+    MarkerError: 422,
+    FitError: 422,
+    BodyspaceError: 422,
+}
+
+#: service error code -> (HTTP status, default message).
+API_ERRORS: dict[str, tuple[int, str]] = {
+    "missing_api_key": (401, "send an API key: 'Authorization: Bearer KEY' or 'X-API-Key: KEY'"),
+    "invalid_api_key": (401, "the API key is not valid"),
+    "not_found": (404, "not found"),
+    "method_not_allowed": (405, "method not allowed"),
+    "fit_not_ready": (409, "the fit has not succeeded (yet): see its state"),
+    "upload_too_large": (413, "the upload is larger than the limit"),
+    "unsupported_media_type": (415, "unsupported content type"),
+    "missing_field": (422, "a required field is missing"),
+    "markers_required": (422, "markers are required: upload them with the scan or the fit"),
+    "validation_error": (422, "the request is not valid"),
+    "bad_request": (400, "bad request"),
+    "not_ready": (503, "a dependency is not reachable"),
+    "internal_error": (500, "internal error"),
+}
+
+
+class ApiError(Exception):
+    """An error answered with status and code from :data:`API_ERRORS`."""
+
+    def __init__(self, code: str, message: str | None = None, **details: Any) -> None:
+        status, default = API_ERRORS[code]
+        super().__init__(message or default)
+        self.status = status
+        self.code = code
+        self.message = message or default
+        self.details = details
+
+
+def error_body(code: str, message: str, details: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The one JSON error shape."""
+    return {"error": {"code": code, "message": message, "details": details or {}}}
+
+
+def core_error_status(exc: BodyspaceError) -> int:
+    """HTTP status of a core domain error (nearest class in :data:`CORE_ERRORS`)."""
+    for cls in type(exc).__mro__:
+        if cls in CORE_ERRORS:
+            return CORE_ERRORS[cls]
+    return 422
+
+
+def describe(exc: BaseException) -> dict[str, Any]:
+    """``{"code", "message", "details"}`` for any exception (stored on failed fits)."""
+    if isinstance(exc, ApiError):
+        return {"code": exc.code, "message": exc.message, "details": _jsonable(exc.details)}
+    if isinstance(exc, BodyspaceError):
+        return {"code": exc.code, "message": exc.message, "details": _jsonable(exc.details)}
+    return {"code": "internal_error", "message": f"{type(exc).__name__}: {exc}", "details": {}}
+
+
+def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, str | int | float | bool) or v is None:
+            out[k] = v
+        elif isinstance(v, list | tuple):
+            out[k] = [x if isinstance(x, str | int | float | bool) else str(x) for x in v]
+        else:
+            out[k] = str(v)
+    return out
+
+
+_HTTP_CODES = {401: "invalid_api_key", 404: "not_found", 405: "method_not_allowed"}
+
+
+def install(app: FastAPI) -> None:
+    """Register the exception handlers that produce the one error shape."""
+
+    @app.exception_handler(ApiError)
+    async def _api(_: Request, exc: ApiError) -> JSONResponse:
+        return JSONResponse(error_body(exc.code, exc.message, exc.details), exc.status)
+
+    @app.exception_handler(BodyspaceError)
+    async def _core(_: Request, exc: BodyspaceError) -> JSONResponse:
+        d = describe(exc)
+        return JSONResponse(error_body(**d), core_error_status(exc))
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [
+            {"loc": [str(x) for x in e.get("loc", ())], "msg": e.get("msg"), "type": e.get("type")}
+            for e in exc.errors()
+        ]
+        missing = [e for e in errors if e["type"] == "missing"]
+        if missing and len(missing) == len(errors):
+            fields = [e["loc"][-1] for e in missing]
+            msg = f"missing required field(s): {', '.join(fields)}"
+            return JSONResponse(error_body("missing_field", msg, {"errors": errors}), 422)
+        first = errors[0] if errors else {"loc": [], "msg": "invalid"}
+        msg = f"{'.'.join(first['loc'])}: {first['msg']}"
+        return JSONResponse(error_body("validation_error", msg, {"errors": errors}), 422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        fallback = "bad_request" if exc.status_code < 500 else "internal_error"
+        code = _HTTP_CODES.get(exc.status_code, fallback)
+        return JSONResponse(error_body(code, str(exc.detail)), exc.status_code)
+
+    @app.exception_handler(Exception)
+    async def _internal(_: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error")
+        return JSONResponse(error_body("internal_error", "internal error"), 500)

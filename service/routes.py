@@ -1,0 +1,402 @@
+"""Routes under ``/v1``: scans (upload, list, get, delete) and fits (create, list, get, result)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+from datetime import datetime
+from functools import lru_cache
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse
+from sqlalchemy import and_, delete, or_, select
+from sqlalchemy.orm import Session
+
+from service.blobs import BlobStore, sha256_file
+from service.db import aware, session_scope
+from service.deps import RunnerDep, SessionDep, SettingsDep, StoreDep, TenantId, require_json
+from service.errors import ApiError
+from service.models import Blob, Fit, Scan, new_id, utcnow
+from service.schemas import (
+    ErrorResponse,
+    FitCreate,
+    FitOut,
+    FitPage,
+    ScanOut,
+    ScanPage,
+    Timings,
+)
+from service.settings import Settings
+from service.uploads import Form, parse_multipart
+from worker.jobs import RESULT_FORMATS, result_key
+
+log = logging.getLogger("bodyspace.service")
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorResponse, "description": "missing or invalid API key"},
+    404: {"model": ErrorResponse, "description": "not found (or another tenant's)"},
+    422: {"model": ErrorResponse, "description": "invalid input"},
+}
+router = APIRouter(prefix="/v1", responses=ERRORS)
+
+UNITS = ("auto", "m", "cm", "mm")
+UPS = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
+SCAN_EXT = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".npz": "npz", ".xyz": "xyz",
+            ".pts": "pts", ".txt": "xyz", ".asc": "xyz"}  # fmt: skip
+
+
+@lru_cache(maxsize=1)
+def landmark_names() -> tuple[str, ...]:
+    from core.template import load_template
+
+    return tuple(sorted(load_template().landmarks))
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _encode_cursor(created_at: datetime, id_: str) -> str:
+    raw = f"{aware(created_at).isoformat()}|{id_}".encode()  # type: ignore[union-attr]
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+
+
+def _decode_cursor(cursor: str) -> tuple[datetime, str]:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        ts, id_ = raw.split("|", 1)
+        return datetime.fromisoformat(ts), id_
+    except Exception:
+        raise ApiError("validation_error", "invalid cursor", field="cursor") from None
+
+
+def _page(session: Session, model: Any, where: list[Any], limit: int, cursor: str | None):
+    q = select(model).where(*where)
+    if cursor:
+        ts, id_ = _decode_cursor(cursor)
+        q = q.where(or_(model.created_at < ts, and_(model.created_at == ts, model.id < id_)))
+    rows = list(
+        session.scalars(q.order_by(model.created_at.desc(), model.id.desc()).limit(limit + 1))
+    )
+    nxt = (
+        _encode_cursor(rows[limit - 1].created_at, rows[limit - 1].id)
+        if len(rows) > limit
+        else None
+    )
+    return rows[:limit], nxt
+
+
+def _scan_out(s: Scan) -> ScanOut:
+    return ScanOut(
+        id=s.id,
+        filename=s.filename,
+        format=s.format,
+        size_bytes=s.size_bytes,
+        n_vertices=s.n_vertices,
+        n_faces=s.n_faces,
+        units=s.units,
+        up=s.up,
+        marker_names=sorted(s.markers or {}),
+        created_at=aware(s.created_at),  # type: ignore[arg-type]
+    )
+
+
+def _seconds(a: datetime | None, b: datetime | None) -> float | None:
+    if a is None or b is None:
+        return None
+    return round((aware(b) - aware(a)).total_seconds(), 3)  # type: ignore[operator]
+
+
+def _fit_out(f: Fit) -> FitOut:
+    return FitOut(
+        id=f.id,
+        scan_id=f.scan_id,
+        state=f.state,  # type: ignore[arg-type]
+        options=f.options or {},
+        progress=f.progress,  # type: ignore[arg-type]
+        timings=Timings(
+            created_at=aware(f.created_at),  # type: ignore[arg-type]
+            started_at=aware(f.started_at),
+            finished_at=aware(f.finished_at),
+            queued_s=_seconds(f.created_at, f.started_at),
+            run_s=_seconds(f.started_at, f.finished_at) if f.finished_at else None,
+            fit_s=f.fit_seconds,
+        ),
+        error=f.error,  # type: ignore[arg-type]
+        attempts=f.attempts,
+        result_formats=list(RESULT_FORMATS) if f.state == "succeeded" else [],
+    )
+
+
+def _own(session: Session, model: Any, id_: str, tenant: str, what: str) -> Any:
+    row = session.get(model, id_)
+    if row is None or row.tenant_id != tenant:
+        raise ApiError("not_found", f"no {what} with id {id_!r}", id=id_)
+    return row
+
+
+def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
+    """Check the uploaded scan (and markers) before anything is stored; returns scan facts."""
+    from core.io import detect_frame, inspect_mesh_header, read_markers, read_mesh
+
+    scan = form.files.get("scan")
+    if scan is None:
+        raise ApiError("missing_field", "missing required field: scan (a file part)", field="scan")
+    units = form.fields.get("units", "auto").strip().lower() or "auto"
+    up = form.fields.get("up", "auto").strip().lower() or "auto"
+    if units not in UNITS:
+        raise ApiError("validation_error", f"units must be one of {UNITS}", field="units")
+    if up not in UPS:
+        raise ApiError("validation_error", f"up must be one of {UPS}", field="up")
+    fmt = SCAN_EXT.get(Path(scan.filename).suffix.lower())
+    head = inspect_mesh_header(
+        scan.path, fmt, max_vertices=settings.max_vertices, max_faces=settings.max_faces
+    )
+    markers = pts = None
+    mfile = form.files.get("markers")
+    if mfile is not None:
+        mfmt = {".csv": "csv", ".json": "json"}.get(Path(mfile.filename).suffix.lower())
+        pts = read_markers(mfile.path, mfmt, valid_names=landmark_names())
+        markers = {k: [float(x) for x in v] for k, v in pts.items()}
+    if scan.size <= settings.full_validation_max_bytes:
+        raw = read_mesh(
+            scan.path, head["format"], max_vertices=settings.max_vertices,
+            max_faces=settings.max_faces,
+        )  # fmt: skip
+        detect_frame(raw.V, units=units, up=up, markers=pts)
+    return {"head": head, "units": units, "up": up, "markers": markers}
+
+
+# ----------------------------------------------------------------------------- scans
+
+SCAN_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["scan"],
+                    "properties": {
+                        "scan": {"type": "string", "format": "binary",
+                                 "description": "PLY, OBJ, STL, NPZ or XYZ scan"},
+                        "markers": {"type": "string", "format": "binary",
+                                    "description": "CSV name,x,y,z or JSON {name: [x,y,z]}"},
+                        "units": {"type": "string", "enum": list(UNITS), "default": "auto"},
+                        "up": {"type": "string", "enum": list(UPS), "default": "auto"},
+                    },
+                }
+            }
+        },
+    }
+}  # fmt: skip
+
+
+@router.post(
+    "/scans",
+    status_code=201,
+    response_model=ScanOut,
+    openapi_extra=SCAN_BODY,
+    responses={
+        413: {"model": ErrorResponse, "description": "upload too large"},
+        415: {"model": ErrorResponse, "description": "not multipart/form-data"},
+    },
+    tags=["scans"],
+)
+async def create_scan(
+    request: Request, response: Response, tenant: TenantId, settings: SettingsDep, store: StoreDep
+) -> ScanOut:
+    """Upload a scan (multipart: ``scan`` file, optional ``markers`` file, ``units``, ``up``).
+
+    The upload streams to disk and is validated (size, header, counts, marker names; small files
+    are parsed whole) before it is accepted.
+    """
+    form = await parse_multipart(
+        request, store, {"scan": settings.max_upload_bytes, "markers": settings.max_marker_bytes}
+    )
+    try:
+        facts = await run_in_threadpool(_validate_scan, form, settings)
+        out = await run_in_threadpool(_store_scan, form, facts, tenant, settings, store)
+    finally:
+        form.cleanup()
+    response.headers["Location"] = f"/v1/scans/{out.id}"
+    return out
+
+
+def _store_scan(
+    form: Form, facts: dict[str, Any], tenant: str, settings: Settings, store: BlobStore
+) -> ScanOut:
+    up = form.files["scan"]
+    head = facts["head"]
+    scan_id = new_id("scn")
+    key = f"{tenant}/scans/{scan_id}/scan.{head['format']}"
+    digest = sha256_file(up.path)
+    store.commit_file(up.path, key)
+    try:
+        with session_scope(settings) as s:
+            row = Scan(
+                id=scan_id,
+                tenant_id=tenant,
+                filename=up.filename[:255],
+                format=head["format"],
+                size_bytes=up.size,
+                n_vertices=int(head["n_vertices"]),
+                n_faces=int(head["n_faces"]),
+                units=facts["units"],
+                up=facts["up"],
+                markers=facts["markers"],
+                blob_key=key,
+            )
+            s.add(row)
+            s.flush()
+            s.add(
+                Blob(
+                    key=key,
+                    tenant_id=tenant,
+                    scan_id=scan_id,
+                    kind="scan",
+                    content_type=up.content_type or "application/octet-stream",
+                    size_bytes=up.size,
+                    sha256=digest,
+                )
+            )
+    except BaseException:
+        store.delete_prefix(f"{tenant}/scans/{scan_id}")
+        raise
+    return _scan_out(row)
+
+
+@router.get("/scans", response_model=ScanPage, tags=["scans"])
+def list_scans(
+    tenant: TenantId,
+    session: SessionDep,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    cursor: str | None = None,
+) -> ScanPage:
+    """The caller's scans, newest first (``next_cursor`` pages on)."""
+    rows, nxt = _page(session, Scan, [Scan.tenant_id == tenant], limit, cursor)
+    return ScanPage(items=[_scan_out(r) for r in rows], next_cursor=nxt)
+
+
+@router.get("/scans/{scan_id}", response_model=ScanOut, tags=["scans"])
+def get_scan(scan_id: str, tenant: TenantId, session: SessionDep) -> ScanOut:
+    """One scan's metadata."""
+    return _scan_out(_own(session, Scan, scan_id, tenant, "scan"))
+
+
+@router.delete("/scans/{scan_id}", status_code=204, tags=["scans"])
+def delete_scan(scan_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+    """Delete a scan, its fits and all their blobs (scans are personal data)."""
+    _own(session, Scan, scan_id, tenant, "scan")
+    fit_ids = list(session.scalars(select(Fit.id).where(Fit.scan_id == scan_id)))
+    session.execute(delete(Blob).where(or_(Blob.scan_id == scan_id, Blob.fit_id.in_(fit_ids))))
+    session.execute(delete(Fit).where(Fit.scan_id == scan_id))
+    session.execute(delete(Scan).where(Scan.id == scan_id))
+    session.commit()
+    store.delete_prefix(f"{tenant}/scans/{scan_id}")
+    for fid in fit_ids:
+        store.delete_prefix(f"{tenant}/fits/{fid}")
+    return Response(status_code=204)
+
+
+# ----------------------------------------------------------------------------- fits
+
+
+@router.post(
+    "/fits",
+    status_code=202,
+    response_model=FitOut,
+    dependencies=[Depends(require_json)],
+    responses={415: {"model": ErrorResponse, "description": "not application/json"}},
+    tags=["fits"],
+)
+def create_fit(
+    body: FitCreate,
+    response: Response,
+    tenant: TenantId,
+    session: SessionDep,
+    runner: RunnerDep,
+) -> FitOut:
+    """Start a fit job: ``202`` with the job and its ``Location``; poll ``GET /v1/fits/{id}``."""
+    from core.io import read_markers
+
+    scan = _own(session, Scan, body.scan_id, tenant, "scan")
+    markers = None
+    if body.markers is not None:
+        pts = read_markers(json.dumps(body.markers).encode(), "json", valid_names=landmark_names())
+        markers = {k: [float(x) for x in v] for k, v in pts.items()}
+    if not (markers or scan.markers):
+        raise ApiError("markers_required")
+    fit = Fit(
+        id=new_id("fit"),
+        tenant_id=tenant,
+        scan_id=scan.id,
+        state="queued",
+        options=body.options.model_dump(exclude_none=True),
+        markers=markers,
+        enqueued_at=utcnow(),
+    )
+    session.add(fit)
+    session.commit()  # the row is the source of truth: committed before it is enqueued
+    try:
+        runner.submit(fit.id)
+    except Exception as e:  # stays queued in the database; recovery enqueues it later
+        log.warning("enqueue of %s failed (recovery will retry): %s", fit.id, e)
+    response.headers["Location"] = f"/v1/fits/{fit.id}"
+    return _fit_out(fit)
+
+
+@router.get("/fits", response_model=FitPage, tags=["fits"])
+def list_fits(
+    tenant: TenantId,
+    session: SessionDep,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    cursor: str | None = None,
+    scan_id: str | None = None,
+    state: Literal["queued", "running", "succeeded", "failed"] | None = None,
+) -> FitPage:
+    """The caller's fits, newest first; filter by ``scan_id`` and ``state``."""
+    where = [Fit.tenant_id == tenant]
+    if scan_id:
+        where.append(Fit.scan_id == scan_id)
+    if state:
+        where.append(Fit.state == state)
+    rows, nxt = _page(session, Fit, where, limit, cursor)
+    return FitPage(items=[_fit_out(r) for r in rows], next_cursor=nxt)
+
+
+@router.get("/fits/{fit_id}", response_model=FitOut, tags=["fits"])
+def get_fit(fit_id: str, tenant: TenantId, session: SessionDep) -> FitOut:
+    """A fit job: state, progress, timings, error."""
+    return _fit_out(_own(session, Fit, fit_id, tenant, "fit"))
+
+
+@router.get(
+    "/fits/{fit_id}/result",
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "the fitted body (template vertex order, metres, +Y up) or the report",
+            "content": {t.split(";")[0]: {} for t in RESULT_FORMATS.values()},
+        },
+        409: {"model": ErrorResponse, "description": "the fit has not succeeded"},
+    },
+    tags=["fits"],
+)
+def get_fit_result(
+    fit_id: str,
+    tenant: TenantId,
+    session: SessionDep,
+    store: StoreDep,
+    format: Literal["glb", "ply", "obj", "json"] = "glb",
+) -> FileResponse:
+    """Download a succeeded fit as GLB, PLY, OBJ or its JSON report."""
+    fit = _own(session, Fit, fit_id, tenant, "fit")
+    if fit.state != "succeeded":
+        raise ApiError("fit_not_ready", f"fit {fit_id} is {fit.state}", state=fit.state)
+    path = store.path(result_key(tenant, fit_id, format))
+    name = f"{fit_id}.{format}" if format != "json" else f"{fit_id}.report.json"
+    return FileResponse(path, media_type=RESULT_FORMATS[format].split(";")[0], filename=name)

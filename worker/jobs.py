@@ -1,0 +1,375 @@
+"""The fit job: claim the row, load the inputs, run ``core``'s fit, store the result atomically.
+
+:func:`run_fit` takes a fit id only and is idempotent: a job that already finished, or that another
+live execution holds, is skipped. Both job runners call it (the embedded process pool and the
+Celery task in :mod:`worker.tasks`). The row is claimed with one conditional ``UPDATE``; a running
+job keeps a heartbeat so that a job whose worker died can be recovered (:func:`recover`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import socket
+import threading
+import time
+from collections.abc import Callable
+from datetime import timedelta
+from typing import Any
+
+import numpy as np
+from sqlalchemy import and_, or_, select, update
+from sqlalchemy.exc import DBAPIError, OperationalError
+
+from core.errors import BodyspaceError
+from service.blobs import BlobStore, sha256_file
+from service.db import session_scope
+from service.errors import describe
+from service.models import Blob, Fit, Scan, utcnow
+from service.settings import Settings, get_settings
+
+log = logging.getLogger("bodyspace.worker")
+
+RESULT_FORMATS = {
+    "glb": "model/gltf-binary",
+    "ply": "application/octet-stream",
+    "obj": "text/plain; charset=utf-8",
+    "json": "application/json",
+}
+
+
+class TransientError(Exception):
+    """A fault worth retrying (database or storage unreachable); never raised for bad input."""
+
+
+TRANSIENT = (OperationalError, DBAPIError, ConnectionError, TimeoutError, TransientError)
+
+
+def worker_name() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def result_key(tenant_id: str, fit_id: str, fmt: str) -> str:
+    name = "report.json" if fmt == "json" else f"result.{fmt}"
+    return f"{tenant_id}/fits/{fit_id}/{name}"
+
+
+def warm_up() -> None:
+    """Build the template operators once per process so the first fit is not slower."""
+    from core.registration.fit import template_operators
+
+    template_operators()
+
+
+def _json_ready(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_ready(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_ready(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _json_ready(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _claim(fit_id: str, task_id: str, settings: Settings) -> bool:
+    now = utcnow()
+    stale = now - timedelta(seconds=settings.stale_after_s)
+    with session_scope(settings) as s:
+        res = s.execute(
+            update(Fit)
+            .where(
+                Fit.id == fit_id,
+                or_(
+                    Fit.state == "queued",
+                    and_(
+                        Fit.state == "running",
+                        or_(Fit.heartbeat_at < stale, Fit.task_id == task_id),
+                    ),
+                ),
+            )
+            .values(
+                state="running",
+                task_id=task_id,
+                worker=worker_name(),
+                heartbeat_at=now,
+                started_at=now,
+                attempts=Fit.attempts + 1,
+                progress={"phase": "loading", "percent": 0.0},
+            )
+        )
+        return res.rowcount == 1
+
+
+def _finish(fit_id: str, task_id: str, settings: Settings, **values: Any) -> bool:
+    """Set the final state if this execution still holds the job."""
+    with session_scope(settings) as s:
+        res = s.execute(
+            update(Fit)
+            .where(Fit.id == fit_id, Fit.task_id == task_id, Fit.state == "running")
+            .values(finished_at=utcnow(), heartbeat_at=utcnow(), **values)
+        )
+        return res.rowcount == 1
+
+
+class _Heartbeat:
+    """Keeps ``heartbeat_at`` fresh while a job runs; notices when the job is lost."""
+
+    def __init__(self, fit_id: str, task_id: str, settings: Settings) -> None:
+        self.fit_id, self.task_id, self.settings = fit_id, task_id, settings
+        self.lost = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True, name="heartbeat")
+        self._pending: dict[str, Any] | None = None
+        self._lock = threading.Lock()
+
+    def __enter__(self) -> _Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def beat(self, progress: dict[str, Any] | None = None) -> None:
+        """One heartbeat (with progress, if given), written now."""
+        try:
+            with session_scope(self.settings) as s:
+                values: dict[str, Any] = {"heartbeat_at": utcnow()}
+                if progress is not None:
+                    values["progress"] = progress
+                res = s.execute(
+                    update(Fit)
+                    .where(
+                        Fit.id == self.fit_id, Fit.task_id == self.task_id, Fit.state == "running"
+                    )
+                    .values(**values)
+                )
+                if res.rowcount == 0:
+                    self.lost.set()
+        except TRANSIENT as e:  # a missed beat is not fatal
+            log.warning("heartbeat of %s failed: %s", self.fit_id, e)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.settings.heartbeat_interval_s):
+            self.beat()
+
+
+def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
+    from core.io import detect_frame, prepare_scan, read_mesh
+
+    raw = read_mesh(
+        store.path(scan.blob_key),
+        scan.format,
+        max_vertices=settings.max_vertices,
+        max_faces=settings.max_faces,
+    )
+    markers_file = fit.markers if fit.markers is not None else scan.markers
+    markers = {k: np.asarray(v, dtype=np.float64) for k, v in (markers_file or {}).items()}
+    frame = detect_frame(raw.V, units=scan.units, up=scan.up, markers=markers or None)
+    prepared = prepare_scan(raw, frame)
+    how_u = "detected" if scan.units == "auto" else "given"
+    how_up = "detected" if scan.up == "auto" else "given"
+    prepared.notes.insert(0, f"units {frame.units} ({how_u}), up axis {frame.up} ({how_up})")
+    canon = {k: frame.to_canonical(v[None, :])[0] for k, v in markers.items()}
+    return prepared, canon
+
+
+def _fit_options(options: dict[str, Any]) -> dict[str, Any]:
+    from core.registration.schedule import Schedule
+
+    out: dict[str, Any] = {}
+    sched = options.get("schedule", "paper")
+    out["schedule"] = Schedule.fast() if sched == "fast" else Schedule.paper()
+    if "shape_prior" in options:
+        out["shape_prior"] = bool(options["shape_prior"])
+    if options.get("max_distance_m") is not None:
+        out["max_distance"] = float(options["max_distance_m"])
+    return out
+
+
+def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
+    """Run fit ``fit_id`` as execution ``task_id``; returns the final state or ``"skipped"``.
+
+    Domain errors and bugs end the job as ``failed`` (with the message); transient faults
+    (database/storage unreachable) are raised for the caller to retry.
+    """
+    from core.io import write_glb, write_obj, write_ply
+    from core.registration.fit import FitCancelled, fit
+
+    settings = settings or get_settings()
+    if not _claim(fit_id, task_id, settings):
+        log.info("fit %s: not claimable (finished, deleted or held elsewhere): skipped", fit_id)
+        return "skipped"
+    with session_scope(settings) as s:
+        row = s.get(Fit, fit_id)
+        scan = None if row is None else s.get(Scan, row.scan_id)
+        if row is None or scan is None:
+            return "skipped"
+        s.expunge_all()
+    if row.attempts > settings.max_attempts:
+        _finish(
+            fit_id,
+            task_id,
+            settings,
+            state="failed",
+            error={
+                "code": "too_many_attempts",
+                "message": f"the job was started {row.attempts - 1} times without finishing "
+                "(its worker was lost each time); not retried again",
+                "details": {},
+            },
+        )
+        return "failed"
+    store = BlobStore(settings.resolved_blob_dir)
+    t0 = time.monotonic()
+    limit = settings.job_time_limit_s
+    timed_out = False
+    with _Heartbeat(fit_id, task_id, settings) as hb:
+        try:
+            scan_obj, markers = _load_inputs(row, scan, store, settings)
+            opts = _fit_options(row.options or {})
+            stages = opts["schedule"].stages
+            last = 0.0
+
+            def on_progress(p) -> bool:
+                nonlocal last, timed_out
+                if time.monotonic() - t0 > limit:
+                    timed_out = True
+                    return False
+                now = time.monotonic()
+                if now - last >= settings.progress_interval_s:
+                    last = now
+                    done = p.stage + min(1.0, (p.iteration + 1) / stages[p.stage].max_iterations)
+                    hb.beat(
+                        _json_ready(
+                            {
+                                "phase": "fitting",
+                                "stage": p.stage,
+                                "n_stages": p.n_stages,
+                                "iteration": p.iteration,
+                                "resolution": p.resolution,
+                                "energy": p.energy,
+                                "max_step_m": p.max_step_m,
+                                "elapsed_s": round(p.elapsed_s, 3),
+                                "percent": round(100.0 * done / p.n_stages, 1),
+                            }
+                        )
+                    )
+                return not hb.lost.is_set()
+
+            result = fit(scan_obj, markers, callback=on_progress, **opts)
+            V, F = result.vertices, result.faces
+            report = _json_ready(result.report.to_dict())
+            keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
+            for p in (store.path(k) for k in keys.values()):
+                p.parent.mkdir(parents=True, exist_ok=True)
+            write_glb(store.path(keys["glb"]), V, F)
+            write_ply(store.path(keys["ply"]), V, F)
+            write_obj(store.path(keys["obj"]), V, F)
+            store.put_bytes(keys["json"], json.dumps(report, indent=1).encode())
+        except FitCancelled:
+            if timed_out:
+                msg = f"the fit exceeded the time limit of {limit:g} s"
+                err = {"code": "time_limit_exceeded", "message": msg, "details": {}}
+                _finish(fit_id, task_id, settings, state="failed", error=err)
+                return "failed"
+            log.info("fit %s: lost its claim (deleted or taken over): abandoned", fit_id)
+            return "skipped"
+        except TRANSIENT:
+            raise
+        except BodyspaceError as e:
+            _finish(fit_id, task_id, settings, state="failed", error=describe(e))
+            return "failed"
+        except Exception as e:
+            if type(e).__name__ == "SoftTimeLimitExceeded":
+                msg = f"the fit exceeded the time limit of {limit:g} s"
+                err = {"code": "time_limit_exceeded", "message": msg, "details": {}}
+            else:
+                log.exception("fit %s raised", fit_id)
+                err = describe(e)
+            _finish(fit_id, task_id, settings, state="failed", error=err)
+            return "failed"
+
+    # One transaction: blob rows + final state, only if this execution still holds the job.
+    with session_scope(settings) as s:
+        res = s.execute(
+            update(Fit)
+            .where(Fit.id == fit_id, Fit.task_id == task_id, Fit.state == "running")
+            .values(
+                state="succeeded",
+                finished_at=utcnow(),
+                report=report,
+                fit_seconds=float(report.get("seconds") or 0.0),
+                progress={"phase": "done", "percent": 100.0},
+                error=None,
+            )
+        )
+        if res.rowcount != 1:
+            if s.get(Fit, fit_id) is None:  # deleted meanwhile: leave nothing behind
+                store.delete_prefix(f"{row.tenant_id}/fits/{fit_id}")
+            return "skipped"
+        for fmt, key in keys.items():
+            p = store.path(key)
+            s.merge(
+                Blob(
+                    key=key,
+                    tenant_id=row.tenant_id,
+                    fit_id=fit_id,
+                    kind=f"result.{fmt}",
+                    content_type=RESULT_FORMATS[fmt],
+                    size_bytes=p.stat().st_size,
+                    sha256=sha256_file(p),
+                )
+            )
+    log.info("fit %s succeeded in %.1f s", fit_id, time.monotonic() - t0)
+    return "succeeded"
+
+
+def recover(
+    submit: Callable[[str], None],
+    settings: Settings | None = None,
+    *,
+    on_start: bool = False,
+    requeue_running: bool = False,
+) -> list[str]:
+    """Re-enqueue jobs that no queue holds any more; returns their ids.
+
+    - queued jobs: all of them ``on_start`` (the broker may have lost its queue), else those
+      enqueued longer than ``requeue_after_s`` ago;
+    - running jobs whose heartbeat is older than ``stale_after_s`` (their worker died), or all
+      running jobs when ``requeue_running`` (embedded start: nothing else can be running them).
+
+    Jobs are set back to ``queued`` first; a duplicate message is harmless (claims are exclusive).
+    """
+    settings = settings or get_settings()
+    now = utcnow()
+    stale = now - timedelta(seconds=settings.stale_after_s)
+    old = now - timedelta(seconds=settings.requeue_after_s)
+    with session_scope(settings) as s:
+        running = Fit.state == "running"
+        if not requeue_running:
+            running = and_(running, or_(Fit.heartbeat_at < stale, Fit.heartbeat_at.is_(None)))
+        queued = Fit.state == "queued"
+        if not on_start:
+            queued = and_(queued, or_(Fit.enqueued_at < old, Fit.enqueued_at.is_(None)))
+        ids = list(s.scalars(select(Fit.id).where(or_(running, queued)).with_for_update()))
+        if ids:
+            s.execute(
+                update(Fit)
+                .where(Fit.id.in_(ids), Fit.state.in_(("queued", "running")))
+                .values(state="queued", enqueued_at=now)
+            )
+    for fit_id in ids:
+        try:
+            submit(fit_id)
+        except Exception as e:  # stays queued in the DB: the next sweep tries again
+            log.warning("re-enqueue of %s failed: %s", fit_id, e)
+    if ids:
+        log.info("recovered %d job(s): %s", len(ids), ", ".join(ids))
+    return ids
