@@ -148,7 +148,8 @@ class ProgressBar:
     def close(self, ok: bool = True) -> None:
         """End the bar: keep the last line after success, erase it after a failure."""
         if self.enabled and self.tty and self._drawn:
-            self.stream.write("\n" if ok else "\r\x1b[K")
+            done = f"\r\x1b[Kfit [{'#' * self.width}] done\n"
+            self.stream.write(done if ok else "\r\x1b[K")
             self.stream.flush()
         self._drawn = False
 

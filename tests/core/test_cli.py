@@ -3,11 +3,11 @@
 Error cases must exit 2 with one ``bodyspace: error: …`` line and no traceback. The real fits use
 ``--fast`` and check the result against the simulator's truth.
 
-Bounds (measured, fast schedule): the small simulated scan below (``ScanConfig.small``, seed 0,
-mm, +Z up, ~26 k points) fits with a per-vertex error to the truth of mean 3.0 mm / p95 6.2 mm
-(seeds 0-7: mean 2.3-4.8 mm, p95 4.8-10.5 mm); the test asserts mean < 6 mm and p95 < 15 mm.
-The bundled example (``bodyspace demo --fast``) measures mean 2.8 mm / p95 5.2 mm; asserted
-mean < 6 mm and p95 < 12 mm.
+Bounds (measured, fast schedule, per-vertex error to the truth): the small simulated scan below
+(``ScanConfig.small``, seed 0, mm, +Z up, ~26 k points) measured mean 2.2-3.0 mm / p95 4.5-6.2 mm
+while the registration was being tuned (seeds 0-7: mean 2.0-4.8 mm, p95 4.2-10.5 mm); the test
+asserts mean < 6 mm and p95 < 12 mm. The bundled example (``bodyspace demo --fast``) measured
+mean 2.8 mm / p95 5.2 mm; asserted mean < 6 mm and p95 < 12 mm.
 """
 
 from __future__ import annotations
@@ -199,7 +199,7 @@ def test_fit_small_scan_recovers_truth(small_case):
 
     err = np.linalg.norm(mesh.V - small_case["truth"], axis=1)
     assert err.mean() < 0.006, err.mean()
-    assert np.percentile(err, 95) < 0.015, np.percentile(err, 95)
+    assert np.percentile(err, 95) < 0.012, np.percentile(err, 95)
 
 
 @pytest.mark.slow
