@@ -238,9 +238,11 @@ def child_main(method: str, seed: int, out: str) -> None:
     gc.collect()
     baseline = _rss_mb()
     exact = _reset_peak()
+    r0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
     X, info = run_method(method, case, tpl)
     wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
     peak = _peak_mb()
     rec: dict[str, Any] = {
         "method": method,
@@ -249,6 +251,7 @@ def child_main(method: str, seed: int, out: str) -> None:
         "meta": meta,
         "seconds": wall,
         "seconds_kind": "cold: first fit call in a fresh process",
+        "cpu_seconds": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime),
         "baseline_mb": baseline,
         "peak_mb": peak,
         "peak_increase_mb": peak - baseline,
@@ -326,6 +329,7 @@ COLS = [
     ("s2f", 6, lambda r: r["metrics"]["scan_to_fit"]["mean"]),
     ("s2f95", 6, lambda r: r["metrics"]["scan_to_fit"]["p95"]),
     ("time s", 7, lambda r: r["seconds"]),
+    ("cpu s", 7, lambda r: r.get("cpu_seconds", float("nan"))),
     ("peak MB", 8, lambda r: r["peak_mb"]),
     ("+MB", 7, lambda r: r["peak_increase_mb"]),
 ]
@@ -344,7 +348,7 @@ def _fmt(v: float, w: int) -> str:
 def _header(first: str = "method", name_w: int = NAME_W) -> str:
     groups = (
         f"{'':{name_w}} {'correspondence error (mm)':^20} {'in holes (mm)':^20} "
-        f"{'mm':>6} {'scan→fit mm':^13} {'':7} {'':8} {'':7}"
+        f"{'mm':>6} {'scan→fit mm':^13}"
     )
     cols = f"{first:{name_w}} " + " ".join(h.rjust(w) for h, w, _ in COLS)
     return groups.rstrip() + "\n" + cols + "\n" + "-" * len(cols)
@@ -433,11 +437,13 @@ def main(argv: list[str] | None = None) -> int:
         "errors in mm against the truth (template order); 'holes' = template vertices with no "
         "scan point within 5 mm of their true position; lmk = mean over the 62 landmark vertices;"
         " s2f = exact scan→fit distance; time = wall time of the first (cold) fit call in a fresh "
-        "process; peak MB = process peak RSS during the fit, +MB = over the baseline after "
-        "imports and case loading",
+        "process, cpu = its user+sys CPU time (all threads); peak MB = process peak RSS during "
+        "the fit, +MB = over the baseline after imports and case loading",
         flush=True,
     )
     t_all = time.perf_counter()
+    load0 = os.getloadavg()
+    print(f"{os.cpu_count()} CPUs; load average at start {load0[0]:.2f}", flush=True)
     results: dict[int, dict[str, dict]] = {}
     metas: dict[int, dict[str, Any]] = {}
     for seed in seeds:
@@ -465,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
 
     summary = summarize(results, methods)
     total = time.perf_counter() - t_all
+    load1 = os.getloadavg()
     print(f"\nSUMMARY over {len(seeds)} cases (seeds {seeds}); total run {total / 60:.1f} min")
     print(_header("method / over cases", SUMMARY_W))
     for m in methods:
@@ -480,6 +487,11 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"bodyspace warm fit time, mean: {summary['bodyspace']['mean']['seconds_warm']:.2f} s"
         )
+    print(
+        f"load average (1 min) at start {load0[0]:.2f}, at end {load1[0]:.2f} on {os.cpu_count()} "
+        "CPUs (a load near or above the CPU count: other work shared the machine, wall times "
+        "are inflated)"
+    )
     print(TARGETS_LINE)
     print(targets_check(summary))
 
@@ -491,6 +503,8 @@ def main(argv: list[str] | None = None) -> int:
             "hole_radius_m": HOLE_RADIUS_M,
             "units": "millimetres for errors, seconds, MB",
             "total_seconds": total,
+            "cpus": os.cpu_count(),
+            "load_average_start_end": [load0[0], load1[0]],
             "cases": [{"seed": s, "meta": metas.get(s), "results": results[s]} for s in seeds],
             "summary": summary,
         }
