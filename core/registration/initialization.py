@@ -92,8 +92,9 @@ def align_markers(
     dst = np.array([markers[k] for k in names], dtype=np.float64)
     if not np.isfinite(dst).all():
         raise MarkerError("marker coordinates must be finite numbers")
-    sv = np.linalg.svd(src - src.mean(0), compute_uv=False)
-    if sv[1] < 1e-3 * max(sv[0], 1e-12):
+    sv_s = np.linalg.svd(src - src.mean(0), compute_uv=False)
+    sv_d = np.linalg.svd(dst - dst.mean(0), compute_uv=False)
+    if sv_s[1] < 1e-2 * max(sv_s[0], 1e-12) or sv_d[1] < 1e-2 * max(sv_d[0], 1e-12):
         raise MarkerError("markers are (nearly) collinear: at least 3 spread-out markers needed")
 
     # Iteratively reweighted fit; then drop gross outliers and refit.

@@ -73,6 +73,7 @@ def load_shape_basis(k: int = 60) -> ShapeBasis:
     k = min(k, int(np.sum(ev > 1e-12 * ev.max())))
     S = np.sqrt(ev[order[:k]])
     U = (D @ Vr[:, order[:k]].astype(np.float32)).astype(np.float64) / S
+    U, _ = np.linalg.qr(U)  # re-orthonormalise (float32 products above)
     # Targets are used at weights of order 1 (and combined); σ = singular value / sqrt(count).
     sigma = S.astype(np.float64) / np.sqrt(len(names)) * 2.0
     return ShapeBasis(U=U.reshape(N_VERTICES, 3, k), sigma=sigma)
