@@ -162,3 +162,35 @@ def glb_vertices(data: bytes) -> np.ndarray:
     view = doc["bufferViews"][acc["bufferView"]]
     start = bin_off + view.get("byteOffset", 0) + acc.get("byteOffset", 0)
     return np.frombuffer(data, np.float32, acc["count"] * 3, start).reshape(-1, 3)
+
+
+GLTF_DIR = ROOT / "tests" / "service" / "gltf"
+
+
+def ensure_gltf_validator() -> Path:
+    """Path of ``validate.js`` (Khronos glTF validator); runs ``npm ci`` there if needed."""
+    if not (GLTF_DIR / "node_modules" / "gltf-validator").is_dir():
+        subprocess.run(
+            ["npm", "ci", "--no-audit", "--no-fund", "--prefix", str(GLTF_DIR)], check=True
+        )
+    return GLTF_DIR / "validate.js"
+
+
+def validate_glb(path: Path) -> dict[str, Any]:
+    """The validator's summary of one file: ``errors``, ``warnings``, ``messages``."""
+    import json
+
+    validator = ensure_gltf_validator()
+    out = subprocess.run(["node", str(validator), str(path)], capture_output=True, text=True)
+    if out.returncode not in (0, 1):
+        raise RuntimeError(f"gltf validator failed: {out.stderr}")
+    return json.loads(out.stdout.splitlines()[0])
+
+
+def upload_scan(client: Any, sim: SimFiles, **fields: str) -> Any:
+    """``POST /v1/scans`` with the simulated scan and markers."""
+    files = {
+        "scan": ("scan.ply", sim.scan.read_bytes(), "application/octet-stream"),
+        "markers": ("markers.csv", sim.markers.read_bytes(), "text/csv"),
+    }
+    return client.post("/v1/scans", files=files, data=fields)
