@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -121,14 +122,24 @@ class FitCancelled(Exception):  # noqa: N818 (a cancellation, not an error)
 
 @dataclass
 class TemplateOperators:
-    """Per-template precomputation shared by all fits (cached)."""
+    """Per-template precomputation shared by all fits (cached; the low level is built lazily)."""
 
     template: Template
     full: ResolutionLevel
-    low: ResolutionLevel
-    hierarchy: Hierarchy
     centre: np.ndarray  # (3,) metres, template centroid
     unit_scale: float
+    n_low: int
+
+    @cached_property
+    def hierarchy(self) -> Hierarchy:
+        tpl = self.template
+        lm = np.array(sorted(tpl.landmarks.values()), dtype=np.int64)
+        return build_hierarchy(tpl.V, np.asarray(tpl.F, np.int64), n_low=self.n_low, required=lm)
+
+    @cached_property
+    def low(self) -> ResolutionLevel:
+        h = self.hierarchy
+        return make_level(self.full.V[h.seeds], h.low_edges, self.full.data_mask[h.seeds], h.seeds)
 
 
 _OPERATORS: dict[tuple[int, int, float], TemplateOperators] = {}
@@ -148,10 +159,7 @@ def template_operators(
     bad = template.extras.get("mask_bad_scan")
     data_mask = np.ones(len(V), bool) if bad is None else ~np.asarray(bad, dtype=bool)
     full = make_level(Vs, unique_edges(F), data_mask, np.arange(len(V)))
-    lm = np.array(sorted(template.landmarks.values()), dtype=np.int64)
-    hier = build_hierarchy(V, F, n_low=n_low, required=lm)
-    low = make_level(Vs[hier.seeds], hier.low_edges, data_mask[hier.seeds], hier.seeds)
-    ops = TemplateOperators(template, full, low, hier, centre, unit_scale)
+    ops = TemplateOperators(template, full, centre, unit_scale, n_low)
     _OPERATORS[key] = ops
     return ops
 
@@ -181,6 +189,7 @@ def iter_fit(
     n_low: int = 2500,
     unit_scale: float = 1000.0,
     shape_prior: bool = True,
+    marker_outlier_distance: float = 0.05,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -194,6 +203,8 @@ def iter_fit(
     max_angle_deg : normals more than this apart are not compatible (paper: 90°).
     confidence_full_at : confidence at which the data weight reaches 1 (paper: 0.2).
     marker_far_distance : metres; markers farther than this from any scan point are dropped.
+    marker_outlier_distance : metres; after the body prior, markers farther than this from the
+        fitted body are dropped with a warning.
     shape_prior : personalise the template first (``core.registration.shape_prior``); False runs
         the paper's method from the plain template.
     """
@@ -253,11 +264,26 @@ def iter_fit(
             max_distance=max_distance,
         )
         report.scale = prior.similarity.s
+        report.marker_residuals_m = {
+            k: float(r) for k, r in zip(align.used, prior.marker_residuals_m, strict=True)
+        }
         report.notes.append(
             f"body prior: {len(prior.coefficients)} shape coefficients, "
             f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
             f"data rms {prior.rms_data_m * 1000:.1f} mm"
         )
+        # markers the fitted body cannot reach are misplaced or misnamed: leave them out
+        used = list(align.used)
+        for name, r in zip(used, prior.marker_residuals_m, strict=True):
+            if r > marker_outlier_distance:
+                report.warnings.append(
+                    f"marker {name} is {r * 100:.1f} cm from the fitted body: ignored "
+                    "(misplaced or misnamed?)"
+                )
+                report.markers_dropped.append(name)
+                align.used.remove(name)
+                report.marker_residuals_m.pop(name, None)
+        marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
         # the affine fit starts from the posed, personalised body, already in the scan frame
         V_base = prior.X
         sim = Similarity(1.0, np.eye(3), np.zeros(3))
@@ -278,8 +304,9 @@ def iter_fit(
     marker_pos = to_solver(np.array([markers[k] for k in align.used]))
     Vs = (V_base - cb) * u
     full = replace(ops.full, V=Vs)
-    low = replace(ops.low, V=Vs[ops.low.vertex_ids])
-    low_pos = {int(v): i for i, v in enumerate(ops.low.vertex_ids)}
+    needs_low = any(st.resolution == "low" for st in schedule.stages)
+    low = replace(ops.low, V=Vs[ops.low.vertex_ids]) if needs_low else None
+    low_pos = {int(v): i for i, v in enumerate(ops.low.vertex_ids)} if needs_low else {}
 
     def x_from_affines(A: np.ndarray) -> np.ndarray:  # (n,3,4) -> (4n,3)
         return np.ascontiguousarray(A.transpose(0, 2, 1)).reshape(-1, 3)

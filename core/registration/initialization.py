@@ -67,8 +67,8 @@ def align_markers(
     markers: dict[str, np.ndarray],
     *,
     min_markers: int = 3,
-    outlier_distance: float = 0.25,
-    warn_distance: float = 0.15,
+    outlier_distance: float = 0.45,
+    warn_distance: float = 0.30,
 ) -> MarkerAlignment:
     """Similarity from template landmark positions to markers (both name -> (3,), metres).
 

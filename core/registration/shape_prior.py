@@ -94,6 +94,7 @@ class PriorFit:
     iterations: int
     rms_marker_m: float
     rms_data_m: float
+    marker_residuals_m: np.ndarray  # (km,) per marker, after the fit
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -195,6 +196,7 @@ def fit_body_prior(
     shape_prior_weight: float = 1.0,
     pose_prior_weight: float = 1e-3,
     marker_weight: float = 4.0,
+    marker_scale: float = 0.03,
     subsample: int = 3,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
@@ -208,6 +210,8 @@ def fit_body_prior(
     shape_prior_weight : weight of ‖c/σ‖² relative to the data (in units of one data row, mm²).
     pose_prior_weight : weight of ‖ω‖² (radians²) relative to one data row in m².
     marker_weight : weight of a marker coordinate relative to one point-to-plane data row.
+    marker_scale : metres; markers whose residual exceeds this lose weight (Cauchy), so a
+        misplaced or misnamed marker cannot bend the body.
     """
     basis = basis or load_shape_basis()
     U, sigma = basis.U, basis.sigma
@@ -246,8 +250,14 @@ def fit_body_prior(
         sw = np.sqrt(w)
         A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
         b_d = np.einsum("rc,rc->r", Np, Q - Xp[rows]) * sw
-        A_m = Jall[nd:].reshape(-1, k + 3 * B) * np.sqrt(marker_weight)
-        b_m = (Qm - Xp[marker_vid]).ravel() * np.sqrt(marker_weight)
+        # robust marker weights (Cauchy): a misplaced or misnamed marker loses its pull
+        res_m = np.linalg.norm(Qm - Xp[marker_vid], axis=1) * sim.s
+        mw = marker_weight / (1.0 + (res_m / marker_scale) ** 2)
+        if it < 2:
+            mw = np.full(len(marker_vid), marker_weight)
+        A_m = Jall[nd:] * np.sqrt(mw)[:, None, None]
+        A_m = A_m.reshape(-1, k + 3 * B)
+        b_m = ((Qm - Xp[marker_vid]) * np.sqrt(mw)[:, None]).ravel()
         rms_d = float(np.sqrt(np.mean(b_d**2 / np.maximum(w, 1e-9)))) if nd else float("nan")
         # normal equations with priors (data rows are in metres: scale priors to mm² units)
         H = A_d.T @ A_d + A_m.T @ A_m
@@ -270,12 +280,14 @@ def fit_body_prior(
         Xp, aux = art.pose(rest, local)
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
-        sim = umeyama(src, dst, np.r_[np.full(len(marker_vid), marker_weight), w])
+        sim = umeyama(src, dst, np.r_[mw, w])
     rest = V0 + U @ c
     X = sim.apply(Xp)
-    rms_m = float(np.sqrt(np.mean(np.sum((X[marker_vid] - marker_pos) ** 2, axis=1))))
+    res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
+    rms_m = float(np.sqrt(np.mean(res_m**2)))
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
+        marker_residuals_m=res_m,
     )  # fmt: skip
