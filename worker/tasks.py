@@ -75,7 +75,8 @@ def submit(fit_id: str) -> None:
 
 @signals.worker_process_init.connect
 def _child_init(**_: object) -> None:
-    jobs.warm_up()
+    # in the background: process start-up must stay short (worker_proc_alive_timeout)
+    threading.Thread(target=jobs.warm_up, daemon=True, name="warm-up").start()
 
 
 _sweeper_stop = threading.Event()
@@ -113,6 +114,7 @@ def main(
 ) -> None:
     """Start a Celery worker for the configured broker (``bodyspace worker``)."""
     argv = ["worker", f"--loglevel={loglevel}", "-Q", get_settings().queue_name]
+    argv += ["--without-mingle", "--without-gossip"]  # workers share nothing but the queue
     if concurrency:
         argv.append(f"--concurrency={concurrency}")
     if hostname:

@@ -1,0 +1,84 @@
+"""Distributed mode end to end and under faults: real Redis, PostgreSQL and Celery workers."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from service.testing import glb_vertices, upload_scan, validate_glb, wait_state
+
+FAST = {"schedule": "fast"}
+
+
+def _logs(*procs) -> str:
+    return "\n".join(f"--- {p.log.name}\n{p.output()[-4000:]}" for p in procs)
+
+
+def test_ready_reports_database_and_broker(client):
+    r = client.get("/readyz")
+    assert r.status_code == 200, r.text
+    assert r.json()["mode"] == "distributed"
+    assert r.json()["checks"] == {"database": "ok", "jobs": "ok"}
+
+
+def test_end_to_end_on_a_celery_worker(client, workers, sim, tmp_path):
+    w = workers("w1")
+    scan = upload_scan(client, sim).json()
+    r = client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST})
+    assert r.status_code == 202, r.text
+    done = wait_state(client, r.json()["id"], timeout=180)
+    assert done["state"] == "succeeded", (done, _logs(w))
+    glb = client.get(f"/v1/fits/{done['id']}/result", params={"format": "glb"})
+    assert glb.status_code == 200
+    path = tmp_path / "fit.glb"
+    path.write_bytes(glb.content)
+    assert validate_glb(path)["errors"] == 0
+    err = np.linalg.norm(glb_vertices(glb.content) - sim.truth, axis=1)
+    assert err.mean() < 0.01, f"mean vertex error {err.mean() * 1000:.1f} mm"
+
+
+def test_failing_fit_is_failed_and_worker_keeps_serving(client, workers, sim):
+    w = workers("w1")
+    scan = upload_scan(client, sim).json()
+    far = {"Vertex": [5.0, 5.0, 5.0], "Menton": [5.0, 4.8, 5.0], "Crotch": [5.0, 4.2, 5.0]}
+    bad = client.post("/v1/fits", json={"scan_id": scan["id"], "markers": far, "options": FAST})
+    good = client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST})
+    failed = wait_state(client, bad.json()["id"], timeout=180)
+    assert failed["state"] == "failed", _logs(w)
+    assert failed["error"]["code"] == "fit_failed" and "markers" in failed["error"]["message"]
+    assert failed["attempts"] == 1  # bad input is not retried
+    assert wait_state(client, good.json()["id"], timeout=180)["state"] == "succeeded", _logs(w)
+    assert w.alive()
+
+
+def test_kill9_worker_mid_fit_then_a_new_worker_completes_it(client, workers, sim):
+    w1 = workers("w1")
+    scan = upload_scan(client, sim).json()
+    fit_id = client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()["id"]
+    running = wait_state(client, fit_id, ("running", "succeeded", "failed"), timeout=120)
+    assert running["state"] == "running", running
+    time.sleep(0.5)
+    w1.kill9()
+    assert client.get(f"/v1/fits/{fit_id}").json()["state"] == "running"
+    w2 = workers("w2")
+    done = wait_state(client, fit_id, timeout=180)
+    assert done["state"] == "succeeded", (done, _logs(w1, w2))
+    assert done["attempts"] == 2
+
+
+def test_flushed_broker_jobs_are_recovered_from_the_database(
+    client, workers, sim, redis_client, queue
+):
+    scan = upload_scan(client, sim).json()
+    ids = [
+        client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()["id"]
+        for _ in range(2)
+    ]
+    assert redis_client.llen(queue) == 2  # no worker runs: both wait in Redis
+    redis_client.flushdb()
+    assert redis_client.llen(queue) == 0
+    w = workers("w3")  # on start it re-enqueues what the database says is queued
+    for fit_id in ids:
+        done = wait_state(client, fit_id, timeout=240)
+        assert done["state"] == "succeeded", (done, _logs(w))
