@@ -82,3 +82,39 @@ def test_flushed_broker_jobs_are_recovered_from_the_database(
     for fit_id in ids:
         done = wait_state(client, fit_id, timeout=240)
         assert done["state"] == "succeeded", (done, _logs(w))
+
+
+def test_job_accepted_while_broker_is_down_runs_later(env, client, workers, sim, tmp_path):
+    from service.testing import free_port, start_server
+
+    down = dict(env, BODYSPACE_BROKER_URL="redis://127.0.0.1:1/0")  # nothing listens there
+    port = free_port()
+    api = start_server(down, port, tmp_path / "api-down.log")
+    try:
+        import httpx
+
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=client.headers) as c:
+            ready = c.get("/readyz")
+            assert ready.status_code == 503 and ready.json()["error"]["code"] == "not_ready"
+            scan = upload_scan(c, sim).json()
+            r = c.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST})
+            assert r.status_code == 202, r.text  # the row is committed: the job is not lost
+    finally:
+        api.stop()
+    w = workers("w4")  # recovers it from the database on start
+    done = wait_state(client, r.json()["id"], timeout=180)
+    assert done["state"] == "succeeded", (done, _logs(w))
+
+
+def test_time_limit_fails_the_job(env, client, sim, tmp_path):
+    from service.testing import start_worker
+
+    w = start_worker(dict(env, BODYSPACE_JOB_TIME_LIMIT_S="1"), tmp_path / "w5.log", "w5")
+    try:
+        scan = upload_scan(client, sim).json()
+        r = client.post("/v1/fits", json={"scan_id": scan["id"], "options": {"schedule": "paper"}})
+        done = wait_state(client, r.json()["id"], timeout=180)
+        assert done["state"] == "failed", (done, _logs(w))
+        assert done["error"]["code"] == "time_limit_exceeded"
+    finally:
+        w.stop()
