@@ -59,7 +59,7 @@ class ScanIndex:
         *,
         max_distance: float,
         max_angle_deg: float = 90.0,
-        k: int = 12,
+        k: int = 10,
         project: bool = True,
         smooth_radius: float = 0.003,
     ) -> Correspondences:
@@ -72,7 +72,7 @@ class ScanIndex:
         """
         n = len(X)
         k = max(1, min(k, len(self.points)))
-        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance)
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=-1)
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)

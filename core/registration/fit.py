@@ -418,8 +418,8 @@ def iter_fit(
     # affines in metres: x_world = A_s (u (v - cb)) / u + c_scan
     A_m = A.copy()
     A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], cb)
-    # scan→fit distance on a fixed subsample of at most 40k scan points (report only)
-    sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), 40_000)).astype(np.int64)
+    # scan→fit distance on a fixed subsample of at most 20k scan points (report only)
+    sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), 20_000)).astype(np.int64)
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
     report.scan_to_fit_mean_m = float(np.mean(d))
     report.scan_to_fit_p95_m = float(np.percentile(d, 95))

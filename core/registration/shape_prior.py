@@ -234,11 +234,15 @@ def fit_body_prior(
         # correspondences in the scan frame; residuals in the posed template frame
         md = max_distance if it < 2 else max_distance * 0.5
         N = vertex_normals(X, F)
-        corr = index.closest_compatible(X, N, max_distance=md, max_angle_deg=60.0, project=False)
-        rows = np.flatnonzero((corr.weights > 0) & mask & sub)
-        P = corr.targets[rows]
-        w = corr.weights[rows]
-        Np = index.normals[corr.point_ids[rows]] @ sim.R  # scan normals in the posed frame
+        cand = np.flatnonzero(mask & sub)
+        corr = index.closest_compatible(
+            X[cand], N[cand], max_distance=md, max_angle_deg=60.0, project=False
+        )
+        ok = corr.weights > 0
+        rows = cand[ok]
+        P = corr.targets[ok]
+        w = corr.weights[ok]
+        Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
         Q = ((P - sim.t) @ sim.R) / sim.s
         Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
         allrows = np.r_[rows, marker_vid]

@@ -61,7 +61,7 @@ class AffineSolver:
     paper's energy exactly.
     """
 
-    def __init__(self, level: ResolutionLevel, *, refactor_fraction: float = 0.01) -> None:
+    def __init__(self, level: ResolutionLevel, *, refactor_fraction: float = 0.03) -> None:
         self.level = level
         self.refactor_fraction = refactor_fraction
         self._lu: spla.SuperLU | None = None
