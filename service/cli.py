@@ -173,6 +173,7 @@ def run_fit(
     up: str = "auto",
     fast: bool = False,
     quiet: bool = False,
+    schedule: str = "default",
 ) -> tuple[Any, Any, dict[str, Any]]:
     """Load a scan (and markers), fit it and time each step.
 
@@ -183,21 +184,22 @@ def run_fit(
     """
     from core.io import load_scan
     from core.registration.fit import fit
-    from core.registration.schedule import Schedule
+    from core.registration.schedule import preset
 
     t0 = time.perf_counter()
     scan, markers = load_scan(scan_path, units=units, up=up, markers_path=markers_path)
     t_load = time.perf_counter() - t0
-    schedule = Schedule.fast() if fast else Schedule.paper()
+    schedule = "fast" if fast else schedule
+    options = preset(schedule)
     bar = ProgressBar(enabled=not quiet)
     t1 = time.perf_counter()
     bar.start()
     ok = False
     try:
         if markers is None:
-            result = _fit_markerless(scan, schedule=schedule, callback=bar)
+            result = _fit_markerless(scan, callback=bar, **options)
         else:
-            result = fit(scan, markers, schedule=schedule, callback=bar)
+            result = fit(scan, markers, callback=bar, **options)
         ok = True
     finally:
         bar.close(ok)
@@ -217,7 +219,7 @@ def run_fit(
             "detected": None if frame is None else bool(frame.detected),
             "scale_to_m": None if frame is None else float(frame.scale),
         },
-        "schedule": "fast" if fast else "paper",
+        "schedule": schedule,
         "timing_s": {"load": t_load, "fit": t_fit},
     }
     return scan, result, info
@@ -285,7 +287,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.report is not None:
         report_path = _check_out_path(Path(args.report), (".json",), "--report")
     _, result, info = run_fit(
-        scan_path, markers_path, units=args.units, up=args.up, fast=args.fast, quiet=args.quiet
+        scan_path,
+        markers_path,
+        units=args.units,
+        up=args.up,
+        fast=args.fast,
+        quiet=args.quiet,
+        schedule=args.schedule,
     )
     write_outputs(result, [out], report_path, info)
     if report_path is not None:
@@ -313,7 +321,14 @@ def register_fit(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--report", metavar="REPORT.json", help="write the JSON fit report here")
     p.add_argument("--units", choices=UNITS_CHOICES, default="auto", help="scan units")
     p.add_argument("--up", choices=UP_CHOICES, default="auto", help="scan up axis")
-    p.add_argument("--fast", action="store_true", help="shorter schedule (previews, tests)")
+    p.add_argument(
+        "--schedule",
+        choices=("default", "fast", "paper"),
+        default="default",
+        help="default: body prior + full-resolution refinement; fast: a short preview; "
+        "paper: Allen et al. 2003's four-stage schedule from the bare template",
+    )
+    p.add_argument("--fast", action="store_true", help="same as --schedule fast")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
     p.set_defaults(func=_cmd_fit)
 

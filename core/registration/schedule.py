@@ -81,3 +81,22 @@ class Schedule:
                 seen_high = True
             elif seen_high:
                 raise ValueError("low-resolution stages must precede high-resolution ones")
+
+
+PRESETS = ("default", "fast", "paper")
+
+
+def preset(name: str) -> dict[str, object]:
+    """Keyword options of :func:`core.registration.fit.fit` for a named preset.
+
+    - ``default``: the body prior, then :meth:`Schedule.refine` (best accuracy, measured).
+    - ``fast``: the body prior, then :meth:`Schedule.fast` (previews, tests).
+    - ``paper``: the paper's method as published: :meth:`Schedule.paper` from the bare template.
+    """
+    if name == "default":
+        return {"schedule": Schedule.refine(), "shape_prior": True}
+    if name == "fast":
+        return {"schedule": Schedule.fast(), "shape_prior": True}
+    if name == "paper":
+        return {"schedule": Schedule.paper(), "shape_prior": False}
+    raise ValueError(f"unknown schedule preset {name!r}; choose one of {', '.join(PRESETS)}")
