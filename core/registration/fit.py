@@ -78,7 +78,8 @@ class FitReport:
     seconds: float = 0.0
     scan_to_fit_mean_m: float = float("nan")
     scan_to_fit_p95_m: float = float("nan")
-    no_data_fraction: float = float("nan")
+    no_data_fraction: float = float("nan")  # no compatible scan point (holes), of all vertices
+    template_region_fraction: float = float("nan")  # taken from the template (ears, fingers...)
     markers_used: list[str] = field(default_factory=list)
     markers_dropped: list[str] = field(default_factory=list)
     marker_residuals_m: dict[str, float] = field(default_factory=dict)
@@ -320,6 +321,7 @@ def iter_fit(
     x_reg: np.ndarray | None = None
     n_stages = len(schedule.stages)
     weights_full = np.zeros(tpl.n_vertices)
+    compatible_full = np.zeros(tpl.n_vertices, dtype=bool)
     for si, st in enumerate(schedule.stages):
         t_stage = time.perf_counter()
         want = low if st.resolution == "low" else full
@@ -358,6 +360,8 @@ def iter_fit(
                     to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
                 )
                 w = corr.weights * level.data_mask
+                if level is full:
+                    compatible_full = corr.weights > 0
                 d_idx = np.flatnonzero(w > 0)
                 terms = SystemTerms(
                     st.alpha,
@@ -423,7 +427,8 @@ def iter_fit(
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
     report.scan_to_fit_mean_m = float(np.mean(d))
     report.scan_to_fit_p95_m = float(np.percentile(d, 95))
-    report.no_data_fraction = float(np.mean(weights_full <= 0))
+    report.no_data_fraction = float(np.mean(~compatible_full))
+    report.template_region_fraction = float(np.mean(~ops.full.data_mask))
     report.seconds = time.perf_counter() - t_start
     yield FitResult(vertices=X, faces=F_full, affines=A_m, data_weight=weights_full, report=report)
 
