@@ -21,7 +21,7 @@ import numpy as np
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.correspondence import ScanIndex
-from core.registration.initialization import Similarity, align_markers
+from core.registration.initialization import MarkerAlignment, Similarity, align_markers
 from core.registration.multires import Hierarchy, build_hierarchy
 from core.registration.operators import (
     ResolutionLevel,
@@ -191,6 +191,8 @@ def iter_fit(
     unit_scale: float = 1000.0,
     shape_prior: bool = True,
     marker_outlier_distance: float = 0.05,
+    initial_similarity: Similarity | None = None,
+    prior_options: dict[str, Any] | None = None,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -208,6 +210,9 @@ def iter_fit(
         fitted body are dropped with a warning.
     shape_prior : personalise the template first (``core.registration.shape_prior``); False runs
         the paper's method from the plain template.
+    initial_similarity : template → scan alignment to start from when ``markers`` is empty
+        (markerless fitting, ``core.matching``).
+    prior_options : extra keyword options of ``fit_body_prior`` (e.g. ``k_schedule``).
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -244,7 +249,12 @@ def iter_fit(
             markers.pop(k)
         report.markers_dropped.extend(far)
     tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
-    align = align_markers(tl, markers)
+    if markers or initial_similarity is None:
+        align = align_markers(tl, markers)
+    else:  # markerless: the caller chose the initial alignment
+        if not shape_prior:
+            raise FitError("a fit without markers needs the body prior (shape_prior=True)")
+        align = MarkerAlignment(initial_similarity, [], [], {})
     report.warnings.extend(align.warnings)
     report.markers_dropped.extend(align.dropped)
     report.markers_used = align.used
@@ -263,6 +273,7 @@ def iter_fit(
             sim,
             data_mask=ops.full.data_mask,
             max_distance=max_distance,
+            **(prior_options or {}),
         )
         report.scale = prior.similarity.s
         report.marker_residuals_m = {
@@ -320,8 +331,6 @@ def iter_fit(
     x: np.ndarray | None = None
     x_reg: np.ndarray | None = None
     n_stages = len(schedule.stages)
-    weights_full = np.zeros(tpl.n_vertices)
-    compatible_full = np.zeros(tpl.n_vertices, dtype=bool)
     for si, st in enumerate(schedule.stages):
         t_stage = time.perf_counter()
         want = low if st.resolution == "low" else full
@@ -360,8 +369,6 @@ def iter_fit(
                     to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
                 )
                 w = corr.weights * level.data_mask
-                if level is full:
-                    compatible_full = corr.weights > 0
                 d_idx = np.flatnonzero(w > 0)
                 terms = SystemTerms(
                     st.alpha,
@@ -392,8 +399,6 @@ def iter_fit(
             step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / u
             x = x_new
             en = energies(level, terms, x)
-            if level is full:
-                weights_full = w
             yield Progress(si, n_stages, it, st.resolution, en, step, time.perf_counter() - t_start)
             if step < st.tolerance_m:
                 converged = True
@@ -414,11 +419,19 @@ def iter_fit(
             )
         )
 
-    assert level is not None and x is not None
-    A = affines_from_x(x)
-    if level is not full:
-        A = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
+    if level is None or x is None:  # no refinement stage: the body prior's result
+        A = np.broadcast_to(A0, (full.n, 3, 4)).copy()
+    else:
+        A = affines_from_x(x)
+        if level is not full:
+            A = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
     X = to_world(apply_affines(A, full.V))
+    # final correspondences, for the data weights and the no-data fraction of the result
+    final = index.closest_compatible(
+        X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg
+    )
+    compatible_full = final.weights > 0
+    weights_full = final.weights * ops.full.data_mask
     # affines in metres: x_world = A_s (u (v - cb)) / u + c_scan
     A_m = A.copy()
     A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], cb)

@@ -24,7 +24,10 @@ class Stage:
 
 @dataclass(frozen=True)
 class Schedule:
-    """An ordered list of stages (low-resolution stages must come first)."""
+    """An ordered list of stages (low-resolution stages must come first).
+
+    An empty schedule keeps the body prior's result without per-vertex refinement.
+    """
 
     stages: tuple[Stage, ...]
 
@@ -69,8 +72,6 @@ class Schedule:
         )
 
     def __post_init__(self) -> None:
-        if not self.stages:
-            raise ValueError("a schedule needs at least one stage")
         seen_high = False
         for st in self.stages:
             if min(st.alpha, st.beta, st.gamma) < 0:

@@ -95,6 +95,7 @@ class PriorFit:
     rms_marker_m: float
     rms_data_m: float
     marker_residuals_m: np.ndarray  # (km,) per marker, after the fit
+    data_cost_m: float  # rms template→scan distance, unmatched vertices counted as 5 cm
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -182,7 +183,7 @@ class _Articulation:
 
 
 def fit_body_prior(
-    index: ScanIndex,
+    index: ScanIndex | None,
     V0: np.ndarray,
     F: np.ndarray,
     marker_vid: np.ndarray,
@@ -198,12 +199,13 @@ def fit_body_prior(
     marker_weight: float = 4.0,
     marker_scale: float = 0.03,
     subsample: int = 3,
+    k_schedule: tuple[int, ...] | None = None,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
     Parameters
     ----------
-    index : the scan (metres, canonical frame).
+    index : the scan (metres, canonical frame), or None to fit the markers alone.
     V0 : (n, 3) template, metres; F : (m, 3) its triangles.
     marker_vid : (km,) template vertices of the markers; marker_pos : (km, 3) metres.
     sim : initial similarity (template → scan), e.g. from the markers.
@@ -212,7 +214,11 @@ def fit_body_prior(
     marker_weight : weight of a marker coordinate relative to one point-to-plane data row.
     marker_scale : metres; markers whose residual exceeds this lose weight (Cauchy), so a
         misplaced or misnamed marker cannot bend the body.
+    k_schedule : number of active shape components per iteration (the paper's k' schedule:
+        few first, more later); the last entry holds for the remaining iterations.
     """
+    if index is None and len(marker_vid) < 3:
+        raise ValueError("fit_body_prior needs a scan or at least 3 markers")
     basis = basis or load_shape_basis()
     U, sigma = basis.U, basis.sigma
     n, k = len(V0), basis.k
@@ -233,16 +239,19 @@ def fit_body_prior(
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
         md = max_distance if it < 2 else max_distance * 0.5
-        N = vertex_normals(X, F)
-        cand = np.flatnonzero(mask & sub)
-        corr = index.closest_compatible(
-            X[cand], N[cand], max_distance=md, max_angle_deg=60.0, project=False
-        )
-        ok = corr.weights > 0
-        rows = cand[ok]
-        P = corr.targets[ok]
-        w = corr.weights[ok]
-        Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
+        if index is not None:
+            N = vertex_normals(X, F)
+            cand = np.flatnonzero(mask & sub)
+            corr = index.closest_compatible(
+                X[cand], N[cand], max_distance=md, max_angle_deg=60.0, project=False
+            )
+            ok = corr.weights > 0
+            rows = cand[ok]
+            P = corr.targets[ok]
+            w = corr.weights[ok]
+            Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
+        else:
+            Np = np.zeros((0, 3))
         Q = ((P - sim.t) @ sim.R) / sim.s
         Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
         allrows = np.r_[rows, marker_vid]
@@ -267,6 +276,9 @@ def fit_body_prior(
         H = A_d.T @ A_d + A_m.T @ A_m
         g = A_d.T @ b_d + A_m.T @ b_m
         prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_prior_weight)]
+        if k_schedule:
+            k_active = k_schedule[min(it, len(k_schedule) - 1)]
+            prior[k_active:k] = 1e12  # inactive components stay where they are
         wvec = np.r_[c, np.zeros(3 * B)]
         H += np.diag(prior)
         g -= prior * wvec
@@ -288,10 +300,22 @@ def fit_body_prior(
     rest = V0 + U @ c
     X = sim.apply(Xp)
     res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
-    rms_m = float(np.sqrt(np.mean(res_m**2)))
+    rms_m = float(np.sqrt(np.mean(res_m**2))) if len(res_m) else float("nan")
+    cost = float("nan")
+    if index is not None:  # how well the body explains the scan (unmatched count as 5 cm)
+        cand = np.flatnonzero(mask & sub)
+        corr = index.closest_compatible(
+            X[cand],
+            vertex_normals(X, F)[cand],
+            max_distance=0.05,
+            max_angle_deg=60.0,
+            project=False,
+        )
+        d = np.where(corr.weights > 0, corr.distances, 0.05)
+        cost = float(np.sqrt(np.mean(np.minimum(d, 0.05) ** 2)))
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
-        marker_residuals_m=res_m,
+        marker_residuals_m=res_m, data_cost_m=cost,
     )  # fmt: skip
