@@ -296,6 +296,18 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             _finish(fit_id, task_id, settings, state="failed", error=err)
             return "failed"
 
+    blobs = [
+        Blob(
+            key=key,
+            tenant_id=row.tenant_id,
+            fit_id=fit_id,
+            kind=f"result.{fmt}",
+            content_type=RESULT_FORMATS[fmt],
+            size_bytes=store.path(key).stat().st_size,
+            sha256=sha256_file(store.path(key)),
+        )
+        for fmt, key in keys.items()
+    ]
     # One transaction: blob rows + final state, only if this execution still holds the job.
     with session_scope(settings) as s:
         res = s.execute(
@@ -314,19 +326,8 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             if s.get(Fit, fit_id) is None:  # deleted meanwhile: leave nothing behind
                 store.delete_prefix(f"{row.tenant_id}/fits/{fit_id}")
             return "skipped"
-        for fmt, key in keys.items():
-            p = store.path(key)
-            s.merge(
-                Blob(
-                    key=key,
-                    tenant_id=row.tenant_id,
-                    fit_id=fit_id,
-                    kind=f"result.{fmt}",
-                    content_type=RESULT_FORMATS[fmt],
-                    size_bytes=p.stat().st_size,
-                    sha256=sha256_file(p),
-                )
-            )
+        for blob in blobs:
+            s.merge(blob)
     log.info("fit %s succeeded in %.1f s", fit_id, time.monotonic() - t0)
     return "succeeded"
 
