@@ -224,6 +224,28 @@ def evaluate(X: np.ndarray, case: Any, tpl: Any) -> dict[str, Any]:
     }
 
 
+def fit_code_hash() -> str:
+    """Short hash of the registration code on disk (it may be edited while the bench runs)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    files = [*sorted((REPO / "core" / "registration").glob("*.py")), REPO / "core" / "geometry.py"]
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:10]
+
+
+def _git_head() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True
+        )
+        return out.stdout.strip() or "?"
+    except OSError:
+        return "?"
+
+
 def child_main(method: str, seed: int, out: str) -> None:
     """One method × case in this (fresh) process; writes a JSON record to ``out``."""
     import trimesh  # noqa: F401  (imports are part of the baseline, not the fit)
@@ -232,6 +254,7 @@ def child_main(method: str, seed: int, out: str) -> None:
     from core.registration.fit import fit  # noqa: F401
     from core.template import load_template
 
+    code = fit_code_hash()
     tpl = load_template()
     case = make_case(seed)
     meta = case_meta(case, tpl)
@@ -256,6 +279,7 @@ def child_main(method: str, seed: int, out: str) -> None:
         "peak_mb": peak,
         "peak_increase_mb": peak - baseline,
         "peak_exact": exact,
+        "fit_code": code,
         "info": info,
     }
     if method == "bodyspace":  # warm: template operators already cached in this process
@@ -443,7 +467,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     t_all = time.perf_counter()
     load0 = os.getloadavg()
-    print(f"{os.cpu_count()} CPUs; load average at start {load0[0]:.2f}", flush=True)
+    head = _git_head()
+    print(
+        f"{os.cpu_count()} CPUs; load average at start {load0[0]:.2f}; git HEAD {head}, "
+        f"registration code {fit_code_hash()}",
+        flush=True,
+    )
     results: dict[int, dict[str, dict]] = {}
     metas: dict[int, dict[str, Any]] = {}
     for seed in seeds:
@@ -492,6 +521,11 @@ def main(argv: list[str] | None = None) -> int:
         "CPUs (a load near or above the CPU count: other work shared the machine, wall times "
         "are inflated)"
     )
+    codes = sorted(
+        {r["fit_code"] for rs in results.values() for r in rs.values() if "fit_code" in r}
+    )
+    if len(codes) > 1:
+        print(f"NOTE: the registration code changed during the run (versions {', '.join(codes)})")
     print(TARGETS_LINE)
     print(targets_check(summary))
 
@@ -504,6 +538,8 @@ def main(argv: list[str] | None = None) -> int:
             "units": "millimetres for errors, seconds, MB",
             "total_seconds": total,
             "cpus": os.cpu_count(),
+            "git_head": head,
+            "fit_code_versions": codes,
             "load_average_start_end": [load0[0], load1[0]],
             "cases": [{"seed": s, "meta": metas.get(s), "results": results[s]} for s in seeds],
             "summary": summary,
