@@ -38,6 +38,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
             "BODYSPACE_API_KEY": KEY_A,
             "BODYSPACE_MAX_UPLOAD_BYTES": str(MAX_UPLOAD),
             "BODYSPACE_PROGRESS_INTERVAL_S": "0.2",
+            "BODYSPACE_MAX_VERTICES": "100000",
         }
     )
     proc = start_server(env, port, data / "server.log")

@@ -55,6 +55,14 @@ def test_oversized_marker_file(client, sim):
     _check(_post_scan(client, sim.scan.read_bytes(), big), 413, "upload_too_large")
 
 
+def test_too_many_vertices(client):
+    n = 100_001  # conftest's BODYSPACE_MAX_VERTICES is 100000
+    head = f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n"
+    head += "property float x\nproperty float y\nproperty float z\nend_header\n"
+    err = _check(_post_scan(client, head.encode() + bytes(12 * n), None), 422, "invalid_file")
+    assert "100,000" in err["message"] or "100000" in err["message"], err
+
+
 def test_truncated_binary_ply(client, sim):
     data = sim.scan.read_bytes()
     err = _check(_post_scan(client, data[: len(data) // 2], None), 422, "invalid_file")
