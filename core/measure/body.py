@@ -212,7 +212,7 @@ def _trunk_extent(key: str, level: Callable[[_Body], float], axis: str) -> Calla
 def _neck(b: _Body) -> float:
     a, h = b.joint("neck01"), b.joint("head")
     axis = _unit(h - a)
-    s0 = float((b.lm("Suprasternale") - a) @ axis)
+    s0 = float((b.lm("Cervicale") - a) @ axis)
     s1 = float((b.lm("Menton") - a) @ axis)
     topo = b.topo.parts("neck", "head", "torso")
 
@@ -221,7 +221,7 @@ def _neck(b: _Body) -> float:
         s = plane_section(b.V, topo, p, axis)
         return b.perimeter(s, s.piece(p))
 
-    return b.search(f, 0.3, 0.9, best="min")
+    return b.search(f, 0.0, 1.0, best="min")
 
 
 def _thigh(b: _Body) -> float:

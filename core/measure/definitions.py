@@ -98,8 +98,9 @@ MEASUREMENTS: dict[str, Measurement] = {
         """Circumference of the neck just below the laryngeal prominence, perpendicular to the
         long axis of the neck. The template has no larynx landmark, so: the smallest
         convex-hull perimeter of the neck loop in planes normal to the rig's neck axis (neck01
-        -> head joint), searched over 30-90 % of the way from Suprasternale to Menton along
-        that axis (the tape sits at the narrowest part, just under the larynx).""",
+        -> head joint), between the plane through Cervicale (C7, the back of the neck's base)
+        and the one through Menton (below the chin): the tape sits at the narrowest part of
+        the neck, just under the larynx.""",
         "neckcircumference",
     ),
     "thighcircumference": _m(
