@@ -269,7 +269,7 @@ def iter_fit(
             tpl.V,
             F_full,
             marker_vid,
-            np.array([markers[k] for k in align.used]),
+            np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3),
             sim,
             data_mask=ops.full.data_mask,
             max_distance=max_distance,
@@ -313,7 +313,9 @@ def iter_fit(
         return Xs / u + c_scan
 
     A0 = np.hstack([sim.s * sim.R, np.zeros((3, 1))])  # (3, 4) in solver units
-    marker_pos = to_solver(np.array([markers[k] for k in align.used]))
+    marker_pos = to_solver(
+        np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
+    )
     Vs = (V_base - cb) * u
     full = replace(ops.full, V=Vs)
     needs_low = any(st.resolution == "low" for st in schedule.stages)

@@ -42,8 +42,13 @@ class MarkerAlignment:
     warnings: list[str] = field(default_factory=list)
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None) -> Similarity:
-    """Least-squares similarity mapping src (k, 3) onto dst (k, 3), optional weights (k,)."""
+def umeyama(
+    src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None, *, scale: float | None = None
+) -> Similarity:
+    """Least-squares similarity mapping src (k, 3) onto dst (k, 3), optional weights (k,).
+
+    With ``scale`` given, the scale is held at that value (a rigid fit of the scaled source).
+    """
     w = np.ones(len(src)) if w is None else np.asarray(w, dtype=np.float64)
     w = w / w.sum()
     mu_s = w @ src
@@ -57,7 +62,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None) -> Si
         E[2, 2] = -1.0
     R = U @ E @ Vt
     var_s = float(w @ np.sum(S**2, axis=1))
-    s = float(np.trace(np.diag(sig) @ E) / max(var_s, 1e-30))
+    s = float(np.trace(np.diag(sig) @ E) / max(var_s, 1e-30)) if scale is None else float(scale)
     t = mu_d - s * R @ mu_s
     return Similarity(s=s, R=R, t=t)
 

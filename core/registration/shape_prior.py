@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from core.registration.correspondence import ScanIndex
 from core.registration.initialization import Similarity, umeyama
@@ -96,6 +97,7 @@ class PriorFit:
     rms_data_m: float
     marker_residuals_m: np.ndarray  # (km,) per marker, after the fit
     data_cost_m: float  # rms template→scan distance, unmatched vertices counted as 5 cm
+    coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -114,6 +116,32 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
         return np.eye(3)
     K = _skew_rows((w / th)[None])[0]
     return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+
+def _scan_to_template(
+    index: ScanIndex,
+    X: np.ndarray,
+    N: np.ndarray,
+    cand: np.ndarray,
+    max_distance: float,
+    n_sample: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample."""
+    pts = index.points
+    step = max(1, len(pts) // n_sample)
+    sel = np.arange(0, len(pts), step)
+    tree = cKDTree(X[cand])
+    d, j = tree.query(pts[sel], k=4, distance_upper_bound=max_distance)
+    valid = np.isfinite(d)
+    jj = np.where(valid, j, 0)
+    dots = np.einsum("skc,sc->sk", N[cand][jj], index.normals[sel])
+    ok = valid & (dots > 0.5)
+    has = ok.any(axis=1)
+    first = np.argmax(ok, axis=1)
+    v = cand[jj[np.arange(len(sel)), first]][has]
+    p = sel[has]
+    w = index.point_weight[p] * ~index.boundary[p]
+    return v, pts[p], w, index.normals[p]
 
 
 class _Articulation:
@@ -200,6 +228,9 @@ def fit_body_prior(
     marker_scale: float = 0.03,
     subsample: int = 3,
     k_schedule: tuple[int, ...] | None = None,
+    bidirectional: bool = False,
+    freeze_pose: int = 0,
+    scan_sample: int = 4000,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -216,6 +247,9 @@ def fit_body_prior(
         misplaced or misnamed marker cannot bend the body.
     k_schedule : number of active shape components per iteration (the paper's k' schedule:
         few first, more later); the last entry holds for the remaining iterations.
+    bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
+        vertex (without markers, one-way pairs let the body shrink or slide off the scan).
+    freeze_pose : iterations before the bone rotations may move (coarse alignment first).
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -250,15 +284,21 @@ def fit_body_prior(
             P = corr.targets[ok]
             w = corr.weights[ok]
             Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
+            if bidirectional:  # scan → template pairs too: the body must cover the scan
+                s_rows, s_P, s_w, s_N = _scan_to_template(index, X, N, cand, md, scan_sample)
+                rows = np.r_[rows, s_rows]
+                P = np.vstack([P, s_P])
+                w = np.r_[w, s_w]
+                Np = np.vstack([Np, s_N @ sim.R])
         else:
             Np = np.zeros((0, 3))
         Q = ((P - sim.t) @ sim.R) / sim.s
         Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
-        allrows = np.r_[rows, marker_vid]
-        Rb = art.blended_rotations(aux, allrows)
-        Jc_all = np.einsum("rab,rbk->rak", Rb, U[allrows])  # (r, 3, k)
-        Jw_all = art.pose_jacobian(aux, allrows)  # (r, 3, 3B)
-        Jall = np.concatenate([Jc_all, Jw_all], axis=2)
+        uniq, inv = np.unique(np.r_[rows, marker_vid], return_inverse=True)
+        Rb = art.blended_rotations(aux, uniq)
+        Jc_u = np.einsum("rab,rbk->rak", Rb, U[uniq])  # (u, 3, k)
+        Jw_u = art.pose_jacobian(aux, uniq)  # (u, 3, 3B)
+        Jall = np.concatenate([Jc_u, Jw_u], axis=2)[inv]
         nd = len(rows)
         sw = np.sqrt(w)
         A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
@@ -275,7 +315,8 @@ def fit_body_prior(
         # normal equations with priors (data rows are in metres: scale priors to mm² units)
         H = A_d.T @ A_d + A_m.T @ A_m
         g = A_d.T @ b_d + A_m.T @ b_m
-        prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_prior_weight)]
+        pose_w = pose_prior_weight if it >= freeze_pose else 1e6
+        prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_w)]
         if k_schedule:
             k_active = k_schedule[min(it, len(k_schedule) - 1)]
             prior[k_active:k] = 1e12  # inactive components stay where they are
@@ -296,12 +337,14 @@ def fit_body_prior(
         Xp, aux = art.pose(rest, local)
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
-        sim = umeyama(src, dst, np.r_[mw, w])
+        # without markers, closest-point pairs bias the scale down: hold it (shape modes carry size)
+        sim = umeyama(src, dst, np.r_[mw, w], scale=None if len(marker_vid) >= 3 else sim.s)
     rest = V0 + U @ c
     X = sim.apply(Xp)
     res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
     rms_m = float(np.sqrt(np.mean(res_m**2))) if len(res_m) else float("nan")
     cost = float("nan")
+    coverage = float("nan")
     if index is not None:  # how well the body explains the scan (unmatched count as 5 cm)
         cand = np.flatnonzero(mask & sub)
         corr = index.closest_compatible(
@@ -311,11 +354,12 @@ def fit_body_prior(
             max_angle_deg=60.0,
             project=False,
         )
-        d = np.where(corr.weights > 0, corr.distances, 0.05)
+        d = np.where(corr.weights > 0, corr.distances, np.inf)
         cost = float(np.sqrt(np.mean(np.minimum(d, 0.05) ** 2)))
+        coverage = float(np.mean(d < 0.015))
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
-        marker_residuals_m=res_m, data_cost_m=cost,
+        marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage,
     )  # fmt: skip

@@ -1,0 +1,1 @@
+"""Matching with incomplete data: markerless fits, bodies from markers alone."""

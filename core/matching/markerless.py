@@ -1,0 +1,173 @@
+"""Matching without markers (paper §5.2 idea): fit shape-space weights, pose and a similarity.
+
+STATUS: work in progress, not wired into the CLI or the service. Measured on simulated scans
+(bench.cases seeds 1–3): from the true similarity the shape-space fit reaches 2.5 mm mean error,
+but the automatic start (height, floor, centroid, torso principal axis) is still 2–5° and ~10 cm
+off and the prior then converges to 40–120 mm. Next: a coarse rigid ICP (two-way pairs, no
+shape/pose) before the shape-space stages, and scoring candidates after it.
+
+Many scans come without markers (consumer scanners, photogrammetry). We align the template
+automatically — height gives the scale, the floor and the horizontal centroid the translation —
+try the plausible facings (every 90° about the vertical, and upside down), keep the candidate
+whose body prior explains the scan best, and finish the body prior from it with a k' schedule
+(few shape components first, more later) and the Gaussian prior E_p on the weights. Optionally
+the per-vertex affine refinement follows (``refine=True``), exactly as for a fit with markers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from core.errors import FitError
+from core.registration.correspondence import ScanIndex
+from core.registration.fit import FitResult, Progress, fit, template_operators
+from core.registration.initialization import Similarity
+from core.registration.schedule import Schedule
+from core.registration.shape_prior import fit_body_prior
+from core.scan import Scan
+from core.template import load_template
+
+K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def facing_candidates(scan: Scan) -> tuple[float, ...]:
+    """Rotations about +Y (degrees) that map the template's left–right axis (+X) onto the
+    scan's: the torso's widest horizontal direction, either sign, and the perpendicular one
+    (either sign) in case the widest direction is front–back."""
+    V = np.asarray(scan.V)
+    lo, hi = np.percentile(V[:, 1], [0.2, 99.8])
+    torso = V[(V[:, 1] > lo + 0.45 * (hi - lo)) & (V[:, 1] < lo + 0.70 * (hi - lo))]
+    if len(torso) < 10:
+        return (0.0, 90.0, 180.0, 270.0)
+    H = torso[:, [0, 2]] - torso[:, [0, 2]].mean(axis=0)
+    _, vecs = np.linalg.eigh(H.T @ H)
+    e1 = vecs[:, 1]  # (x, z) of the widest direction
+    base = float(np.degrees(np.arctan2(-e1[1], e1[0])))  # rotation about y taking +X to e1
+    return tuple((base + d) % 360.0 for d in (0.0, 180.0, 90.0, 270.0))
+
+
+def candidate_alignments(scan: Scan, *, upside_down: bool = True) -> list[Similarity]:
+    """Template → scan similarities to try: scale from height, floor and centroid, each facing.
+
+    The scan is in the canonical frame (metres, +Y up as detected by the reader; the upside-down
+    candidates cover a reader's wrong guess of the up direction's sign).
+    """
+    tpl = load_template()
+    V = np.asarray(scan.V)
+    lo, hi = np.percentile(V[:, 1], [0.2, 99.8])
+    height = hi - lo
+    t_lo, t_hi = tpl.V[:, 1].min(), tpl.V[:, 1].max()
+    if not 0.4 < height < 2.6:
+        raise FitError(
+            f"the scan is {height:.2f} m tall along +Y: not a standing body in metres "
+            "(give units= and up= explicitly)",
+            height_m=float(height),
+        )
+    s = height / (t_hi - t_lo)
+    c_scan = np.median(V, axis=0)
+    out = []
+    flips = [np.eye(3)] + ([_rot_z(180.0)] if upside_down else [])
+    for fi, flip in enumerate(flips):
+        for deg in facing_candidates(scan):
+            R = _rot_y(deg) @ flip
+            Y = s * tpl.V @ R.T
+            t = np.array([c_scan[0], 0.0, c_scan[2]]) - np.array(
+                [np.median(Y[:, 0]), 0.0, np.median(Y[:, 2])]
+            )
+            # floor: bottom of the scan's points (top, for the upside-down candidates)
+            t[1] = (lo - Y[:, 1].min()) if fi == 0 else (hi - Y[:, 1].max())
+            out.append(Similarity(s, R, t))
+    return out
+
+
+def choose_alignment(
+    scan: Scan, index: ScanIndex | None = None, *, trial_iterations: int = 4
+) -> tuple[Similarity, list[dict[str, Any]]]:
+    """Run a short body prior from each candidate; return the best start and all scores."""
+    tpl = load_template()
+    ops = template_operators()
+    index = index or ScanIndex(scan)
+    F = np.asarray(tpl.F, dtype=np.int64)
+    empty_i, empty_p = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    scores = []
+    best: tuple[float, Similarity] | None = None
+    for sim in candidate_alignments(scan):
+        pf = fit_body_prior(
+            index, tpl.V, F, empty_i, empty_p, sim, data_mask=ops.full.data_mask,
+            iterations=trial_iterations, k_schedule=(6, 6, 12, 12), subsample=6,
+            bidirectional=True, freeze_pose=trial_iterations,
+        )  # fmt: skip
+        scores.append(
+            {"facing_R": sim.R.round(3).tolist(), "cost_m": pf.data_cost_m, "coverage": pf.coverage}
+        )
+        if best is None or pf.coverage > best[0]:
+            best = (pf.coverage, pf.similarity)
+    assert best is not None
+    return best[1], scores
+
+
+def fit_markerless(
+    scan: Scan,
+    *,
+    refine: bool = True,
+    schedule: Schedule | None = None,
+    callback: Callable[[Progress], bool | None] | None = None,
+    min_coverage: float = 0.4,
+    **options: Any,
+) -> FitResult:
+    """Fit the template to a scan without markers.
+
+    Parameters
+    ----------
+    scan : the scan (metres, canonical frame, see ``core.io.load_scan``).
+    refine : follow the shape-space fit by the per-vertex affine refinement.
+    schedule : the refinement schedule (default :meth:`Schedule.refine`); ignored without refine.
+    min_coverage : if even the best start matches less than this share of the template within
+        1.5 cm, the scan is not a body we can fit: ``FitError``.
+
+    Returns
+    -------
+    FitResult as for :func:`core.registration.fit.fit`; the report notes the chosen alignment.
+    """
+    index = ScanIndex(scan)
+    sim, scores = choose_alignment(scan, index)
+    best_cov = max(s["coverage"] for s in scores)
+    if not np.isfinite(best_cov) or best_cov < min_coverage:
+        raise FitError(
+            "could not find a body in this scan: at best "
+            f"{best_cov * 100:.0f} % of the template lies within 1.5 cm of it "
+            "(is it a whole standing body?)",
+            coverage=best_cov,
+        )
+    sched = (schedule or Schedule.refine()) if refine else Schedule(())
+    prior_options: dict[str, Any] = {
+        "k_schedule": K_SCHEDULE,
+        "iterations": 16,
+        "bidirectional": True,
+        "freeze_pose": 3,
+    }
+    prior_options.update(options.pop("prior_options", {}) or {})
+    res = fit(
+        scan, {}, initial_similarity=sim, schedule=sched, callback=callback,
+        prior_options=prior_options, **options,
+    )  # fmt: skip
+    res.report.notes.append(
+        f"markerless: best of {len(scores)} starting alignments "
+        f"({best_cov * 100:.0f} % of the template within 1.5 cm)"
+    )
+    return res
