@@ -398,5 +398,8 @@ def get_fit_result(
     if fit.state != "succeeded":
         raise ApiError("fit_not_ready", f"fit {fit_id} is {fit.state}", state=fit.state)
     path = store.path(result_key(tenant, fit_id, format))
+    if not path.is_file():
+        log.error("result file of %s is missing: %s", fit_id, path)
+        raise ApiError("not_found", f"the {format} result of fit {fit_id} is missing from storage")
     name = f"{fit_id}.{format}" if format != "json" else f"{fit_id}.report.json"
     return FileResponse(path, media_type=RESULT_FORMATS[format].split(";")[0], filename=name)

@@ -66,7 +66,7 @@ def env(tmp_path_factory, pg_url, redis_client) -> dict[str, str]:
             "BODYSPACE_QUEUE_NAME": queue,
             "BODYSPACE_PROGRESS_INTERVAL_S": "0.2",
             "BODYSPACE_HEARTBEAT_INTERVAL_S": "0.5",
-            "BODYSPACE_STALE_AFTER_S": "4",
+            "BODYSPACE_STALE_AFTER_S": "6",
             "BODYSPACE_SWEEP_INTERVAL_S": "1",
         }
     )
@@ -89,12 +89,12 @@ def client(api) -> Iterator[httpx.Client]:
 
 
 @pytest.fixture()
-def workers(env, tmp_path) -> Iterator[Callable[[str], Proc]]:
+def workers(env, tmp_path) -> Iterator[Callable[..., Proc]]:
     """Start Celery workers (``bodyspace worker``); all are stopped after the test."""
     started: list[Proc] = []
 
-    def start(name: str) -> Proc:
-        p = _start_worker(env, tmp_path / f"{name}.log", name)
+    def start(name: str, **extra: str) -> Proc:
+        p = _start_worker(dict(env, **extra), tmp_path / f"{name}.log", name)
         started.append(p)
         return p
 

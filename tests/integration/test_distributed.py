@@ -118,3 +118,30 @@ def test_time_limit_fails_the_job(env, client, sim, tmp_path):
         assert done["error"]["code"] == "time_limit_exceeded"
     finally:
         w.stop()
+
+
+def _children(pid: int) -> list[int]:
+    from pathlib import Path
+
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
+def test_kill9_pool_process_mid_fit_message_is_redelivered(client, workers, sim):
+    import os
+    import signal
+
+    # no stale-heartbeat recovery here: only the broker's redelivery can bring the job back
+    w = workers("w6", BODYSPACE_STALE_AFTER_S="600")
+    scan = upload_scan(client, sim).json()
+    fit_id = client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()["id"]
+    running = wait_state(client, fit_id, ("running", "succeeded", "failed"), timeout=120)
+    assert running["state"] == "running", running
+    (child,) = _children(w.pid)  # concurrency 1: the one pool process runs the fit
+    os.kill(child, signal.SIGKILL)
+    # task_reject_on_worker_lost: the worker puts the message back, a new pool process reruns it
+    done = wait_state(client, fit_id, timeout=180)
+    assert done["state"] == "succeeded", (done, _logs(w))
+    assert done["attempts"] == 2 and w.alive()
