@@ -39,6 +39,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
             "BODYSPACE_MAX_UPLOAD_BYTES": str(MAX_UPLOAD),
             "BODYSPACE_PROGRESS_INTERVAL_S": "0.2",
             "BODYSPACE_MAX_VERTICES": "100000",
+            "BODYSPACE_HEARTBEAT_INTERVAL_S": "0.5",
         }
     )
     proc = start_server(env, port, data / "server.log")

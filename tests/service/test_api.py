@@ -120,3 +120,18 @@ def test_delete_scan_removes_fits_and_blobs(client, server, sim):
     assert not list(blobs.glob(f"*/scans/{scan['id']}*"))
     assert not list(blobs.glob(f"*/fits/{fit['id']}*"))
     assert client.delete(f"/v1/scans/{scan['id']}").status_code == 404
+
+
+def test_delete_scan_while_its_fit_runs_leaves_no_result_behind(client, server, sim):
+    scan = upload_scan(client, sim).json()
+    fit = client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()
+    assert wait_state(client, fit["id"], ("running", "succeeded", "failed"))["state"] == "running"
+    assert client.delete(f"/v1/scans/{scan['id']}").status_code == 204
+    # the pool has one process: once a later job is done, the deleted one has ended too
+    other = upload_scan(client, sim).json()
+    later = client.post("/v1/fits", json={"scan_id": other["id"], "options": FAST}).json()
+    assert wait_state(client, later["id"])["state"] == "succeeded"
+    blobs = server["data"] / "blobs"
+    assert list(blobs.glob(f"*/fits/{later['id']}/*"))
+    assert not list(blobs.glob(f"*/fits/{fit['id']}*")), list(blobs.glob(f"*/fits/{fit['id']}/*"))
+    assert not list(blobs.glob(f"*/scans/{scan['id']}*"))
