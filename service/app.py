@@ -17,7 +17,7 @@ from fastapi.routing import APIRoute
 
 from service import errors
 from service.auth import ensure_local_key
-from service.blobs import BlobStore
+from service.blobs import make_store
 from service.db import migrate, ping, session_scope
 from service.jobs import make_runner
 from service.routes import router
@@ -49,7 +49,7 @@ def _startup(settings: Settings) -> None:
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     await run_in_threadpool(_startup, settings)
-    app.state.store = BlobStore(settings.resolved_blob_dir)
+    app.state.store = make_store(settings)
     runner = make_runner(settings)
     await run_in_threadpool(runner.start)
     app.state.runner = runner

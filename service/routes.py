@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, StreamingResponse
 from sqlalchemy import and_, delete, or_, select
 from sqlalchemy.orm import Session
 
@@ -392,14 +392,20 @@ def get_fit_result(
     session: SessionDep,
     store: StoreDep,
     format: Literal["glb", "ply", "obj", "json"] = "glb",
-) -> FileResponse:
+) -> Response:
     """Download a succeeded fit as GLB, PLY, OBJ or its JSON report."""
     fit = _own(session, Fit, fit_id, tenant, "fit")
     if fit.state != "succeeded":
         raise ApiError("fit_not_ready", f"fit {fit_id} is {fit.state}", state=fit.state)
-    path = store.path(result_key(tenant, fit_id, format))
-    if not path.is_file():
-        log.error("result file of %s is missing: %s", fit_id, path)
+    key = result_key(tenant, fit_id, format)
+    size = store.size(key)
+    if size is None:
+        log.error("result %s of %s is missing from storage", key, fit_id)
         raise ApiError("not_found", f"the {format} result of fit {fit_id} is missing from storage")
     name = f"{fit_id}.{format}" if format != "json" else f"{fit_id}.report.json"
-    return FileResponse(path, media_type=RESULT_FORMATS[format].split(";")[0], filename=name)
+    media = RESULT_FORMATS[format].split(";")[0]
+    path = store.local_path(key)
+    if path is not None:
+        return FileResponse(path, media_type=media, filename=name)
+    headers = {"Content-Length": str(size), "Content-Disposition": f'attachment; filename="{name}"'}
+    return StreamingResponse(store.iter_chunks(key), media_type=media, headers=headers)

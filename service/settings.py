@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -24,6 +25,9 @@ class Settings(BaseSettings):
     database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite in DATA_DIR")
     broker_url: str | None = Field(None, description="redis://… enables Celery (distributed mode)")
     blob_dir: Path | None = Field(None, description="blob folder; default DATA_DIR/blobs")
+    blob_backend: Literal["folder", "database"] = Field(
+        "folder", description="'folder' (BLOB_DIR, a shared mount when distributed) or 'database'"
+    )
     api_key: str | None = Field(None, description="embedded mode: the local tenant's key")
 
     # limits

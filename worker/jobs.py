@@ -24,7 +24,7 @@ from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import DBAPIError, OperationalError
 
 from core.errors import BodyspaceError
-from service.blobs import BlobStore, sha256_file
+from service.blobs import BlobStore, make_store, sha256_file
 from service.db import session_scope
 from service.errors import describe
 from service.models import Blob, Fit, Scan, utcnow
@@ -163,12 +163,10 @@ class _Heartbeat:
 def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
     from core.io import detect_frame, prepare_scan, read_mesh
 
-    raw = read_mesh(
-        store.path(scan.blob_key),
-        scan.format,
-        max_vertices=settings.max_vertices,
-        max_faces=settings.max_faces,
-    )
+    with store.local_copy(scan.blob_key) as path:
+        raw = read_mesh(
+            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces
+        )
     markers_file = fit.markers if fit.markers is not None else scan.markers
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in (markers_file or {}).items()}
     frame = detect_frame(raw.V, units=scan.units, up=scan.up, markers=markers or None)
@@ -226,7 +224,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             },
         )
         return "failed"
-    store = BlobStore(settings.resolved_blob_dir)
+    store = make_store(settings)
     t0 = time.monotonic()
     limit = settings.job_time_limit_s
     timed_out = False
@@ -267,12 +265,29 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             V, F = result.vertices, result.faces
             report = _json_ready(result.report.to_dict())
             keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
-            for p in (store.path(k) for k in keys.values()):
-                p.parent.mkdir(parents=True, exist_ok=True)
-            write_glb(store.path(keys["glb"]), V, F)
-            write_ply(store.path(keys["ply"]), V, F)
-            write_obj(store.path(keys["obj"]), V, F)
-            store.put_bytes(keys["json"], json.dumps(report, indent=1).encode())
+            files = {f: store.temp_file(f".{f}") for f in RESULT_FORMATS}
+            write_glb(files["glb"], V, F)
+            write_ply(files["ply"], V, F)
+            write_obj(files["obj"], V, F)
+            files["json"].write_text(json.dumps(report, indent=1), encoding="utf-8")
+            blobs = [
+                Blob(
+                    key=keys[fmt],
+                    tenant_id=row.tenant_id,
+                    fit_id=fit_id,
+                    kind=f"result.{fmt}",
+                    content_type=RESULT_FORMATS[fmt],
+                    size_bytes=files[fmt].stat().st_size,
+                    sha256=sha256_file(files[fmt]),
+                )
+                for fmt in RESULT_FORMATS
+            ]
+            try:
+                for fmt, tmp in files.items():
+                    store.commit_file(tmp, keys[fmt])
+            finally:  # consumed by commit_file, unless it failed
+                for tmp in files.values():
+                    tmp.unlink(missing_ok=True)
         except FitCancelled:
             if timed_out:
                 msg = f"the fit exceeded the time limit of {limit:g} s"
@@ -296,18 +311,6 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             _finish(fit_id, task_id, settings, state="failed", error=err)
             return "failed"
 
-    blobs = [
-        Blob(
-            key=key,
-            tenant_id=row.tenant_id,
-            fit_id=fit_id,
-            kind=f"result.{fmt}",
-            content_type=RESULT_FORMATS[fmt],
-            size_bytes=store.path(key).stat().st_size,
-            sha256=sha256_file(store.path(key)),
-        )
-        for fmt, key in keys.items()
-    ]
     # One transaction: blob rows + final state, only if this execution still holds the job.
     with session_scope(settings) as s:
         res = s.execute(

@@ -145,3 +145,46 @@ def test_kill9_pool_process_mid_fit_message_is_redelivered(client, workers, sim)
     done = wait_state(client, fit_id, timeout=180)
     assert done["state"] == "succeeded", (done, _logs(w))
     assert done["attempts"] == 2 and w.alive()
+
+
+def test_database_blob_backend_needs_no_shared_folder(env, workers, sim, tmp_path, redis_client):
+    """API and worker with different data folders: scans and results travel through PostgreSQL."""
+    import httpx
+    import psycopg
+
+    from service.testing import free_port, start_server
+
+    db = dict(
+        env,
+        BODYSPACE_BLOB_BACKEND="database",
+        BODYSPACE_QUEUE_NAME=env["BODYSPACE_QUEUE_NAME"] + "-db",
+    )
+    port = free_port()
+    api = start_server(dict(db, BODYSPACE_DATA_DIR=str(tmp_path / "api")), port, tmp_path / "a.log")
+    try:
+        w = workers("w7", BODYSPACE_BLOB_BACKEND="database", BODYSPACE_DATA_DIR=str(tmp_path / "w"),
+                    BODYSPACE_QUEUE_NAME=db["BODYSPACE_QUEUE_NAME"])  # fmt: skip
+        headers = {"X-API-Key": env["BODYSPACE_API_KEY"]}
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=headers, timeout=60) as c:
+            scan = upload_scan(c, sim).json()
+            fit_id = c.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()["id"]
+            done = wait_state(c, fit_id, timeout=180)
+            assert done["state"] == "succeeded", (done, _logs(w))
+            glb = c.get(f"/v1/fits/{fit_id}/result", params={"format": "glb"})
+            assert glb.status_code == 200
+            assert int(glb.headers["content-length"]) == len(glb.content)
+            path = tmp_path / "fit.glb"
+            path.write_bytes(glb.content)
+            assert validate_glb(path)["errors"] == 0
+            err = np.linalg.norm(glb_vertices(glb.content) - sim.truth, axis=1)
+            assert err.mean() < 0.01
+            assert not list((tmp_path / "api").rglob("*.glb"))  # nothing on the API's disk
+            assert c.delete(f"/v1/scans/{scan['id']}").status_code == 204
+        with psycopg.connect(env["BODYSPACE_DATABASE_URL"]) as conn:
+            left = conn.execute(
+                "SELECT count(*) FROM blob_data WHERE key LIKE %s OR key LIKE %s",
+                (f"%/{scan['id']}/%", f"%/{fit_id}/%"),
+            ).fetchone()[0]
+        assert left == 0
+    finally:
+        api.stop()
