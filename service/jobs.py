@@ -59,6 +59,7 @@ class EmbeddedRunner:
         self._pool: ProcessPoolExecutor | None = None
         self._pending: dict[str, Future] = {}
         self._generation = 0
+        self._stop = threading.Event()
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(
@@ -74,6 +75,17 @@ class EmbeddedRunner:
             self._pool = self._new_pool()
         # Nothing else runs this database's jobs: everything unfinished is ours to run again.
         recover(self.submit, self.settings, on_start=True, requeue_running=True)
+        threading.Thread(target=self._sweep, daemon=True, name="recovery-sweep").start()
+
+    def _sweep(self) -> None:
+        """Re-run jobs whose process died or that a transient fault left behind."""
+        from worker.jobs import recover
+
+        while not self._stop.wait(self.settings.sweep_interval_s):
+            try:
+                recover(self.submit, self.settings)
+            except Exception as e:  # keep sweeping
+                log.warning("recovery sweep failed: %s", e)
 
     def submit(self, fit_id: str) -> None:
         with self._lock:
@@ -111,6 +123,7 @@ class EmbeddedRunner:
             raise RuntimeError("the embedded job runner is not started")
 
     def shutdown(self) -> None:
+        self._stop.set()
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy import and_, or_, select, update
-from sqlalchemy.exc import DBAPIError, OperationalError
+from sqlalchemy.exc import InterfaceError, OperationalError
 
 from core.errors import BodyspaceError
 from service.blobs import BlobStore, make_store, sha256_file
@@ -44,7 +44,8 @@ class TransientError(Exception):
     """A fault worth retrying (database or storage unreachable); never raised for bad input."""
 
 
-TRANSIENT = (OperationalError, DBAPIError, ConnectionError, TimeoutError, TransientError)
+#: Faults retried by the task: the database or a network store is unreachable (not bad input).
+TRANSIENT = (OperationalError, InterfaceError, ConnectionError, TimeoutError, TransientError)
 
 
 def worker_name() -> str:
