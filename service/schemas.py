@@ -40,10 +40,17 @@ class FitOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    schedule: Literal["paper", "fast"] = Field(
-        "paper", description="'paper': Allen et al. 2003's schedule; 'fast': a short preview"
+    schedule: Literal["default", "fast", "paper"] = Field(
+        "default",
+        description="'default': body prior + full-resolution refinement (most accurate); "
+        "'fast': a short preview; 'paper': Allen et al. 2003's four-stage schedule from the "
+        "bare template",
     )
-    shape_prior: bool = Field(True, description="personalise the template before the affine fit")
+    shape_prior: bool | None = Field(
+        None,
+        description="override: personalise the template before the affine fit "
+        "(default: on for 'default'/'fast', off for 'paper')",
+    )
     max_distance_m: float | None = Field(
         None, gt=0, le=0.5, description="farthest compatible scan point, metres (default 0.10)"
     )

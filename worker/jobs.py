@@ -180,12 +180,10 @@ def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
 
 
 def _fit_options(options: dict[str, Any]) -> dict[str, Any]:
-    from core.registration.schedule import Schedule
+    from core.registration.schedule import preset
 
-    out: dict[str, Any] = {}
-    sched = options.get("schedule", "paper")
-    out["schedule"] = Schedule.fast() if sched == "fast" else Schedule.paper()
-    if "shape_prior" in options:
+    out: dict[str, Any] = dict(preset(options.get("schedule") or "default"))
+    if options.get("shape_prior") is not None:
         out["shape_prior"] = bool(options["shape_prior"])
     if options.get("max_distance_m") is not None:
         out["max_distance"] = float(options["max_distance_m"])
