@@ -33,8 +33,6 @@ UNITS_CHOICES = ("auto", "m", "cm", "mm")
 UP_CHOICES = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "core" / "assets" / "examples"
 
-# Markerless fitting arrives with a later issue: flip this and fill in ``_fit_markerless``.
-MARKERLESS_AVAILABLE = False
 
 # Modules exposing ``register(subparsers)``, imported when present.
 PLUGIN_MODULES = ("service.commands",)
@@ -158,11 +156,15 @@ class ProgressBar:
 
 
 def _fit_markerless(scan: Any, **options: Any) -> Any:
-    """Fit without markers: not available yet (a later issue replaces this function)."""
-    raise CliError(
-        "markerless fitting is not available yet; give a marker file with --markers "
-        "(CSV name,x,y,z or JSON)"
-    )
+    """Fit without markers: shape-space start from an automatic alignment, then refinement."""
+    from core.matching.markerless import fit_markerless
+
+    if not options.pop("shape_prior", True):
+        raise CliError(
+            "fitting without markers needs the body prior: use --schedule default or fast, "
+            "or give a marker file with --markers"
+        )
+    return fit_markerless(scan, **options)
 
 
 def run_fit(
@@ -280,8 +282,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     markers_path = None
     if args.markers is not None:
         markers_path = _check_in_path(Path(args.markers), "marker file")
-    elif not MARKERLESS_AVAILABLE:
-        _fit_markerless(None)  # raises the "not available yet" error before any work
+    elif args.fast or args.schedule != "paper":
+        pass  # markerless: the body prior finds the body
+    else:
+        raise CliError(
+            "fitting without markers needs the body prior: use --schedule default or fast, "
+            "or give a marker file with --markers"
+        )
     out = _check_out_path(Path(args.out))
     report_path = None
     if args.report is not None:

@@ -145,10 +145,20 @@ def test_unwritable_out_folder(tmp_path, small_case):
     assert_one_line_error(r, "does not exist")
 
 
-def test_no_markers_is_not_available_yet(tmp_path, small_case):
-    r = run_cli("fit", small_case["scan"], "--out", tmp_path / "f.ply")
-    assert_one_line_error(r, "markerless", "--markers")
+def test_no_markers_with_paper_schedule_is_an_error(tmp_path, small_case):
+    r = run_cli("fit", small_case["scan"], "--out", tmp_path / "f.ply", "--schedule", "paper")
+    assert_one_line_error(r, "body prior", "--markers")
     assert r.stderr.count("\n") == 1
+
+
+def test_no_markers_runs_markerless(tmp_path, small_case):
+    out = tmp_path / "f.ply"
+    r = run_cli("fit", small_case["scan"], "--out", out, "--fast", "--quiet")
+    assert r.returncode == 0, r.stderr
+    V = read_mesh(out).V
+    assert V.shape == (N_TEMPLATE, 3)
+    err = np.linalg.norm(V - small_case["truth"], axis=1) * 1000
+    assert err.mean() < 10.0  # measured 4-6.3 mm on small scans (tests/core/test_matching.py)
 
 
 def test_help_and_usage():
