@@ -20,6 +20,7 @@ from core.registration.schedule import Schedule
 from core.registration.shape_prior import fit_body_prior
 from core.scan import Scan
 from core.template import load_template
+from core.threads import single_blas_thread
 
 K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
 
@@ -113,6 +114,7 @@ def choose_alignment(
     return best.similarity, scores
 
 
+@single_blas_thread
 def fit_markerless(
     scan: Scan,
     *,

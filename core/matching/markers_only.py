@@ -11,13 +11,55 @@ import time
 
 import numpy as np
 
-from core.errors import MarkerError
+from core.errors import MarkerError, UnitsError
 from core.registration.fit import FitReport, FitResult
-from core.registration.initialization import align_markers
+from core.registration.initialization import MarkerAlignment, align_markers
 from core.registration.shape_prior import fit_body_prior
 from core.template import Template, load_template
+from core.threads import single_blas_thread
 
 
+def check_markers(
+    markers: dict[str, np.ndarray], *, template: Template | None = None
+) -> MarkerAlignment:
+    """Validate markers for :func:`fit_markers_only` without fitting (fast: a similarity only).
+
+    Parameters
+    ----------
+    markers : landmark name -> (3,) position, metres, +Y up.
+
+    Returns
+    -------
+    The template → markers alignment (markers used, dropped, residuals).
+
+    Raises
+    ------
+    MarkerError
+        Unknown names, fewer than 3 usable markers, non-finite or collinear markers.
+    UnitsError
+        The markers are far from the size of a human body in metres (wrong units).
+    """
+    tpl = template or load_template()
+    unknown = sorted(set(markers) - set(tpl.landmarks))
+    if unknown:
+        raise MarkerError(
+            f"unknown marker names: {', '.join(unknown)}; valid names are the 62 landmarks "
+            f"({', '.join(list(tpl.landmarks)[:6])}, ...)",
+            unknown=unknown,
+        )
+    m = {k: np.asarray(v, dtype=np.float64).reshape(3) for k, v in markers.items()}
+    align = align_markers({k: tpl.V[i] for k, i in tpl.landmarks.items()}, m)
+    s = float(align.similarity.s)
+    if not 0.5 <= s <= 1.6:
+        raise UnitsError(
+            f"the markers are {s:.3g} times the size of the template body: they do not look like "
+            "metres, +Y up (give units= and up=, or 'auto' to detect them)",
+            scale=s,
+        )
+    return align
+
+
+@single_blas_thread
 def fit_markers_only(
     markers: dict[str, np.ndarray],
     *,
@@ -34,18 +76,13 @@ def fit_markers_only(
     ------
     MarkerError
         Unknown names, fewer than 3 usable markers, non-finite or collinear markers.
+    UnitsError
+        Markers far from a body's size in metres (see :func:`check_markers`).
     """
     t0 = time.perf_counter()
     tpl = template or load_template()
-    unknown = sorted(set(markers) - set(tpl.landmarks))
-    if unknown:
-        raise MarkerError(
-            f"unknown marker names: {', '.join(unknown)}; valid names are the 62 landmarks "
-            f"({', '.join(list(tpl.landmarks)[:6])}, ...)",
-            unknown=unknown,
-        )
-    m = {k: np.asarray(v, dtype=np.float64) for k, v in markers.items()}
-    align = align_markers({k: tpl.V[i] for k, i in tpl.landmarks.items()}, m)
+    align = check_markers(markers, template=tpl)
+    m = {k: np.asarray(v, dtype=np.float64).reshape(3) for k, v in markers.items()}
     vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
     pos = np.array([m[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
     prior = fit_body_prior(

@@ -35,6 +35,7 @@ from core.registration.shape_prior import fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
+from core.threads import single_blas_thread
 
 
 @dataclass
@@ -448,6 +449,7 @@ def iter_fit(
     yield FitResult(vertices=X, faces=F_full, affines=A_m, data_weight=weights_full, report=report)
 
 
+@single_blas_thread
 def fit(
     scan: Scan,
     markers: dict[str, np.ndarray],

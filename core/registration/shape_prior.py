@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -52,9 +53,11 @@ class ShapeBasis:
         return self.U.shape[2]
 
 
-@cache
-def load_shape_basis(k: int = 60) -> ShapeBasis:
-    """The top-``k`` principal directions of the committed MakeHuman target library (cached)."""
+BASIS_ASSET = Path(__file__).resolve().parents[1] / "assets" / "shape_basis.npz"
+
+
+def compute_shape_basis(k: int = 60) -> ShapeBasis:
+    """The top-``k`` principal directions of the committed MakeHuman target library."""
     from core.synth.targets import N_VERTICES, load_targets
 
     lib = load_targets()
@@ -78,6 +81,29 @@ def load_shape_basis(k: int = 60) -> ShapeBasis:
     # Targets are used at weights of order 1 (and combined); σ = singular value / sqrt(count).
     sigma = S.astype(np.float64) / np.sqrt(len(names)) * 2.0
     return ShapeBasis(U=U.reshape(N_VERTICES, 3, k), sigma=sigma)
+
+
+def write_shape_basis(path: Path = BASIS_ASSET, k: int = 60) -> None:
+    """Store the basis compactly (float16 directions; re-orthonormalised on load)."""
+    b = compute_shape_basis(k)
+    np.savez_compressed(path, U=b.U.astype(np.float16), sigma=b.sigma)
+
+
+@cache
+def load_shape_basis(k: int = 60) -> ShapeBasis:
+    """The shape basis (cached): from ``core/assets/shape_basis.npz`` when it holds ≥ k
+    directions, else computed from the target library (~1 s)."""
+    if BASIS_ASSET.exists():
+        with np.load(BASIS_ASSET) as z:
+            U16, sigma = z["U"], z["sigma"]
+        if U16.shape[2] >= k:
+            n = U16.shape[0]
+            U, _ = np.linalg.qr(U16[:, :, :k].astype(np.float64).reshape(n * 3, k))
+            # keep each direction's sign (QR may flip it)
+            ref = U16[:, :, :k].reshape(n * 3, k).astype(np.float64)
+            U *= np.sign(np.sum(U * ref, axis=0))
+            return ShapeBasis(U=U.reshape(n, 3, k), sigma=sigma[:k].astype(np.float64))
+    return compute_shape_basis(k)
 
 
 @dataclass
