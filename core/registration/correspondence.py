@@ -62,13 +62,16 @@ class ScanIndex:
         k: int = 10,
         project: bool = True,
         smooth_radius: float = 0.003,
+        rim_tolerance: float = 0.0015,
     ) -> Correspondences:
         """Match deformed template vertices X (n, 3) with unit normals N (n, 3) to the scan.
 
         Takes, among the ``k`` nearest scan points within ``max_distance``, the nearest whose
         normal is within ``max_angle_deg`` of the template normal. With ``project``, the target
         is X moved along that point's normal onto the locally averaged scan surface
-        (``smooth_radius``, metres, 0 for the single matched tangent plane).
+        (``smooth_radius``, metres, 0 for the single matched tangent plane). A boundary point
+        gives way to a compatible interior point at most ``rim_tolerance`` (metres) farther:
+        in merged multi-view scans one view's rim lies inside another view's coverage.
         """
         n = len(X)
         k = max(1, min(k, len(self.points)))
@@ -82,8 +85,17 @@ class ScanIndex:
         ok = valid & (dots > cos_lim)
         has = ok.any(axis=1)
         first = np.argmax(ok, axis=1)
-        jm = jj[np.arange(n), first]
-        dist = np.where(has, d[np.arange(n), first], np.inf)
+        # Overlapping views: a view's rim is not a hole where another view covers it. When a
+        # compatible interior point is (almost) as close as the nearest compatible point, use
+        # it; only where the rim is clearly nearest is the vertex over a real hole.
+        interior = ok & ~self.boundary[jj]
+        has_int = interior.any(axis=1)
+        first_int = np.argmax(interior, axis=1)
+        rows = np.arange(n)
+        near_enough = has_int & (d[rows, first_int] <= d[rows, first] + rim_tolerance)
+        first = np.where(near_enough, first_int, first)
+        jm = jj[rows, first]
+        dist = np.where(has, d[rows, first], np.inf)
         P = self.points[jm]
         if project:
             # Target: X moved along the matched normal onto the local surface, whose offset is
