@@ -25,6 +25,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 FIT_STATES = ("queued", "running", "succeeded", "failed")
+FIT_MODES = ("full", "markerless", "markers_only")
 
 
 def utcnow() -> datetime:
@@ -92,7 +93,11 @@ class Fit(Base):
 
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     tenant_id: Mapped[str] = mapped_column(ForeignKey("tenants.id", ondelete="CASCADE"))
-    scan_id: Mapped[str] = mapped_column(ForeignKey("scans.id", ondelete="CASCADE"), index=True)
+    # None for a markers-only fit (no scan); such a fit is deleted with ``DELETE /v1/fits/{id}``
+    scan_id: Mapped[str | None] = mapped_column(
+        ForeignKey("scans.id", ondelete="CASCADE"), index=True, default=None
+    )
+    mode: Mapped[str] = mapped_column(String(16), default="full", server_default="full")
     state: Mapped[str] = mapped_column(String(16), default="queued")
     options: Mapped[dict[str, Any]] = mapped_column(default=dict)
     markers: Mapped[dict[str, Any] | None] = mapped_column(default=None)  # overrides the scan's

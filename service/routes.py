@@ -113,6 +113,7 @@ def _seconds(a: datetime | None, b: datetime | None) -> float | None:
 def _fit_out(f: Fit) -> FitOut:
     return FitOut(
         id=f.id,
+        mode=f.mode or "full",  # type: ignore[arg-type]
         scan_id=f.scan_id,
         state=f.state,  # type: ignore[arg-type]
         options=f.options or {},
@@ -320,22 +321,38 @@ def create_fit(
     session: SessionDep,
     runner: RunnerDep,
 ) -> FitOut:
-    """Start a fit job: ``202`` with the job and its ``Location``; poll ``GET /v1/fits/{id}``."""
-    from core.io import read_markers
+    """Start a fit job: ``202`` with the job and its ``Location``; poll ``GET /v1/fits/{id}``.
 
-    scan = _own(session, Scan, body.scan_id, tenant, "scan")
+    ``mode``: ``full`` (scan + markers, the default), ``markerless`` (scan only; markers are
+    ignored) or ``markers_only`` (markers only; ``scan_id`` optional). Inputs are validated before
+    the job is accepted (a markers-only request's markers: known names, at least 3, not
+    collinear, body-sized in the given units).
+    """
+    scan = None
+    if body.scan_id is not None:
+        scan = _own(session, Scan, body.scan_id, tenant, "scan")
+    elif body.mode != "markers_only":
+        raise ApiError(
+            "missing_field",
+            f"scan_id is required for mode {body.mode!r} (only 'markers_only' needs no scan)",
+            field="scan_id",
+        )
+    options = _check_fit_options(body)
     markers = None
-    if body.markers is not None:
-        pts = read_markers(json.dumps(body.markers).encode(), "json", valid_names=landmark_names())
-        markers = {k: [float(x) for x in v] for k, v in pts.items()}
-    if not (markers or scan.markers):
-        raise ApiError("markers_required")
+    if body.markers is not None and body.mode != "markerless":  # markerless ignores markers
+        markers = _read_inline_markers(body.markers)
+    if body.mode == "full":
+        if not (markers or scan.markers):
+            raise ApiError("markers_required")
+    elif body.mode == "markers_only":
+        options.update(_check_markers_only(scan, markers, body))
     fit = Fit(
         id=new_id("fit"),
         tenant_id=tenant,
-        scan_id=scan.id,
+        scan_id=None if scan is None else scan.id,
+        mode=body.mode,
         state="queued",
-        options=body.options.model_dump(exclude_none=True),
+        options=options,
         markers=markers,
         enqueued_at=utcnow(),
     )
@@ -349,6 +366,71 @@ def create_fit(
     return _fit_out(fit)
 
 
+def _read_inline_markers(given: dict[str, list[float]]) -> dict[str, list[float]]:
+    from core.io import read_markers
+
+    pts = read_markers(json.dumps(given).encode(), "json", valid_names=landmark_names())
+    return {k: [float(x) for x in v] for k, v in pts.items()}
+
+
+def _check_fit_options(body: FitCreate) -> dict[str, Any]:
+    """The stored options of a request; options that contradict the mode are a 422."""
+    opts = body.options
+    if body.mode == "markerless" and (opts.schedule == "paper" or opts.shape_prior is False):
+        raise ApiError(
+            "validation_error",
+            "a markerless fit starts from the shape space (body prior): use schedule 'default' "
+            "or 'fast', without shape_prior=false",
+            field="options",
+        )
+    if opts.refine is not None and body.mode != "markerless":
+        raise ApiError(
+            "validation_error", "options.refine applies to mode 'markerless' only", field="refine"
+        )
+    if body.mode != "markers_only" or body.scan_id is not None:
+        for name in ("units", "up"):
+            if getattr(body, name) is not None:
+                raise ApiError(
+                    "validation_error",
+                    f"{name} describes markers given without a scan (mode 'markers_only'); "
+                    "otherwise markers are in the scan's units and axes, set at upload",
+                    field=name,
+                )
+    return opts.model_dump(exclude_none=True)
+
+
+def _check_markers_only(
+    scan: Scan | None, markers: dict[str, list[float]] | None, body: FitCreate
+) -> dict[str, Any]:
+    """Validate a markers-only request; returns the options to store (the markers' frame)."""
+    import numpy as np
+
+    from core.errors import MarkerError
+    from core.io import detect_frame
+    from core.matching.markers_only import check_markers
+
+    given = markers if markers is not None else (scan.markers if scan is not None else None)
+    if not given:
+        msg = "a markers-only fit needs markers: give them in the request" + (
+            " or upload them with the scan" if scan is not None else ""
+        )
+        raise ApiError("markers_required", msg)
+    if len(given) < 3:
+        raise MarkerError(
+            f"need at least 3 markers named after template landmarks; got {len(given)} "
+            f"({', '.join(given)})",
+            n_markers=len(given),
+        )
+    if scan is not None:  # in the scan's frame: converted with it by the worker
+        return {}
+    pts = {k: np.asarray(v, dtype=np.float64) for k, v in given.items()}
+    frame = detect_frame(
+        np.array(list(pts.values())), units=body.units or "m", up=body.up or "+y", markers=pts
+    )
+    check_markers({k: frame.to_canonical(v[None])[0] for k, v in pts.items()})
+    return {"units": frame.units, "up": frame.up}
+
+
 @router.get("/fits", response_model=FitPage, tags=["fits"])
 def list_fits(
     tenant: TenantId,
@@ -357,13 +439,17 @@ def list_fits(
     cursor: str | None = None,
     scan_id: str | None = None,
     state: Literal["queued", "running", "succeeded", "failed"] | None = None,
+    mode: Literal["full", "markerless", "markers_only"] | None = None,
 ) -> FitPage:
-    """The caller's fits, newest first; filter by ``scan_id`` and ``state``."""
+    """The caller's fits (with or without a scan), newest first; filter by ``scan_id``,
+    ``state`` and ``mode``."""
     where = [Fit.tenant_id == tenant]
     if scan_id:
         where.append(Fit.scan_id == scan_id)
     if state:
         where.append(Fit.state == state)
+    if mode:
+        where.append(Fit.mode == mode)
     rows, nxt = _page(session, Fit, where, limit, cursor)
     return FitPage(items=[_fit_out(r) for r in rows], next_cursor=nxt)
 
@@ -372,6 +458,21 @@ def list_fits(
 def get_fit(fit_id: str, tenant: TenantId, session: SessionDep) -> FitOut:
     """A fit job: state, progress, timings, error."""
     return _fit_out(_own(session, Fit, fit_id, tenant, "fit"))
+
+
+@router.delete("/fits/{fit_id}", status_code=204, tags=["fits"])
+def delete_fit(fit_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+    """Delete one fit (of any mode) and its result blobs; its scan, if any, is kept.
+
+    A markers-only fit without a scan is deleted only this way. A running fit is abandoned by
+    its worker, which leaves no result behind.
+    """
+    _own(session, Fit, fit_id, tenant, "fit")
+    session.execute(delete(Blob).where(Blob.fit_id == fit_id))
+    session.execute(delete(Fit).where(Fit.id == fit_id))
+    session.commit()
+    store.delete_prefix(f"{tenant}/fits/{fit_id}")
+    return Response(status_code=204)
 
 
 @router.get(

@@ -8,6 +8,9 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 FitState = Literal["queued", "running", "succeeded", "failed"]
+FitMode = Literal["full", "markerless", "markers_only"]
+MarkerUnits = Literal["auto", "m", "cm", "mm"]
+MarkerUp = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 
 
 class ErrorInfo(BaseModel):
@@ -54,16 +57,48 @@ class FitOptions(BaseModel):
     max_distance_m: float | None = Field(
         None, gt=0, le=0.5, description="farthest compatible scan point, metres (default 0.10)"
     )
+    refine: bool | None = Field(
+        None,
+        description="mode 'markerless' only: follow the shape-space fit with the per-vertex "
+        "affine refinement of the schedule (default true); false returns the shape-space body",
+    )
 
 
 class FitCreate(BaseModel):
-    """A fit request: a scan id, optional markers (else the scan's) and options."""
+    """A fit request: a mode, a scan id, optional markers (else the scan's) and options.
+
+    - ``full`` (default): scan + markers (given here or uploaded with the scan).
+    - ``markerless``: scan only; markers are ignored.
+    - ``markers_only``: the most likely body from markers alone. Without ``scan_id`` the markers
+      must be given here, in metres +Y up unless ``units``/``up`` say otherwise; with
+      ``scan_id`` the markers (given here, else the scan's uploaded marker file) are in the scan
+      file's units and axes, and the scan's surface is not used.
+    """
 
     model_config = ConfigDict(extra="forbid")
 
-    scan_id: str
+    mode: FitMode = Field(
+        "full",
+        description="'full': scan + markers; 'markerless': scan without markers; "
+        "'markers_only': markers without a scan (scan_id optional)",
+    )
+    scan_id: str | None = Field(
+        None, description="the scan to fit; required unless mode is 'markers_only'"
+    )
     markers: dict[str, list[float]] | None = Field(
-        None, description="landmark name -> [x, y, z] in the scan file's units and axes"
+        None,
+        description="landmark name -> [x, y, z] in the scan file's units and axes (mode "
+        "'markers_only' without a scan: metres, +Y up unless units/up are given)",
+    )
+    units: MarkerUnits | None = Field(
+        None,
+        description="mode 'markers_only' without a scan: units of the markers (default 'm'; "
+        "'auto' detects them from the markers' height)",
+    )
+    up: MarkerUp | None = Field(
+        None,
+        description="mode 'markers_only' without a scan: the markers' up axis (default '+y'; "
+        "'auto' detects it from head and foot landmarks)",
     )
     options: FitOptions = Field(default_factory=FitOptions)
 
@@ -91,7 +126,8 @@ class Timings(BaseModel):
 
 class FitOut(BaseModel):
     id: str
-    scan_id: str
+    mode: FitMode = "full"
+    scan_id: str | None = Field(None, description="None for a markers-only fit without a scan")
     state: FitState
     options: dict[str, Any]
     progress: Progress | None = None

@@ -161,7 +161,11 @@ class _Heartbeat:
             self.beat()
 
 
-def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
+def _load_inputs(
+    fit: Fit, scan: Scan, store: BlobStore, settings: Settings, *, use_markers: bool = True
+):
+    """The prepared scan and the markers (canonical frame); without markers (``use_markers``
+    False: markerless) the frame is detected from the scan alone."""
     from core.io import detect_frame, prepare_scan, read_mesh
 
     with store.local_copy(scan.blob_key) as path:
@@ -169,6 +173,8 @@ def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
             path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces
         )
     markers_file = fit.markers if fit.markers is not None else scan.markers
+    if not use_markers:
+        markers_file = None
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in (markers_file or {}).items()}
     frame = detect_frame(raw.V, units=scan.units, up=scan.up, markers=markers or None)
     prepared = prepare_scan(raw, frame)
@@ -179,15 +185,66 @@ def _load_inputs(fit: Fit, scan: Scan, store: BlobStore, settings: Settings):
     return prepared, canon
 
 
-def _fit_options(options: dict[str, Any]) -> dict[str, Any]:
+def _fit_options(options: dict[str, Any], mode: str = "full") -> dict[str, Any]:
+    """Keyword options of the core function of ``mode`` from a job's stored options."""
     from core.registration.schedule import preset
 
+    if mode == "markers_only":  # schedules and distances concern the scan: none here
+        return {}
     out: dict[str, Any] = dict(preset(options.get("schedule") or "default"))
     if options.get("shape_prior") is not None:
         out["shape_prior"] = bool(options["shape_prior"])
     if options.get("max_distance_m") is not None:
         out["max_distance"] = float(options["max_distance_m"])
+    if mode == "markerless":
+        out.pop("shape_prior", None)  # always on (the service rejects it off)
+        out["refine"] = bool(options.get("refine", True))
     return out
+
+
+def _markers_only_inputs(fit: Fit) -> tuple[dict[str, np.ndarray], str]:
+    """A scan-less markers-only job's markers in the canonical frame, and a note on the frame."""
+    from core.io import detect_frame
+
+    markers = {k: np.asarray(v, dtype=np.float64) for k, v in (fit.markers or {}).items()}
+    opts = fit.options or {}
+    units, up = opts.get("units", "m"), opts.get("up", "+y")
+    frame = detect_frame(np.array(list(markers.values())), units=units, up=up)
+    canon = {k: frame.to_canonical(v[None, :])[0] for k, v in markers.items()}
+    return canon, f"markers in units {frame.units}, up axis {frame.up} (no scan)"
+
+
+def _run_core(
+    row: Fit,
+    scan: Scan | None,
+    store: BlobStore,
+    settings: Settings,
+    callback: Callable[[Any], bool],
+):
+    """Load the job's inputs and call the core function of its mode; returns a FitResult."""
+    from core.matching.markerless import fit_markerless
+    from core.matching.markers_only import fit_markers_only
+    from core.registration.fit import fit
+
+    mode = row.mode or "full"
+    opts = _fit_options(row.options or {}, mode)
+    if mode == "markers_only":
+        if scan is None:
+            markers, note = _markers_only_inputs(row)
+            units, up = (row.options or {}).get("units"), (row.options or {}).get("up")
+        else:  # markers in the scan file's frame: the scan only tells the frame
+            scan_obj, markers = _load_inputs(row, scan, store, settings)
+            note = scan_obj.notes[0] + "; the scan's surface is not used"
+            units = scan_obj.frame.units if scan_obj.frame else None
+            up = scan_obj.frame.up if scan_obj.frame else None
+        result = fit_markers_only(markers)
+        result.report.notes.insert(0, note)
+        result.report.units, result.report.up = units, up
+        return result
+    scan_obj, markers = _load_inputs(row, scan, store, settings, use_markers=mode == "full")
+    if mode == "markerless":
+        return fit_markerless(scan_obj, callback=callback, **opts)
+    return fit(scan_obj, markers, callback=callback, **opts)
 
 
 def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
@@ -197,7 +254,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
     (database/storage unreachable) are raised for the caller to retry.
     """
     from core.io import write_glb, write_obj, write_ply
-    from core.registration.fit import FitCancelled, fit
+    from core.registration.fit import FitCancelled
 
     settings = settings or get_settings()
     if not _claim(fit_id, task_id, settings):
@@ -205,8 +262,8 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
         return "skipped"
     with session_scope(settings) as s:
         row = s.get(Fit, fit_id)
-        scan = None if row is None else s.get(Scan, row.scan_id)
-        if row is None or scan is None:
+        scan = None if row is None or row.scan_id is None else s.get(Scan, row.scan_id)
+        if row is None or (row.scan_id is not None and scan is None):  # deleted meanwhile
             return "skipped"
         s.expunge_all()
     if row.attempts > settings.max_attempts:
@@ -229,9 +286,8 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
     timed_out = False
     with _Heartbeat(fit_id, task_id, settings) as hb:
         try:
-            scan_obj, markers = _load_inputs(row, scan, store, settings)
-            opts = _fit_options(row.options or {})
-            stages = opts["schedule"].stages
+            stages = _fit_options(row.options or {}, row.mode or "full").get("schedule")
+            stages = stages.stages if stages is not None else ()
             last = 0.0
 
             def on_progress(p) -> bool:
@@ -260,7 +316,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
                     )
                 return not hb.lost.is_set()
 
-            result = fit(scan_obj, markers, callback=on_progress, **opts)
+            result = _run_core(row, scan, store, settings, on_progress)
             V, F = result.vertices, result.faces
             report = _json_ready(result.report.to_dict())
             keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
