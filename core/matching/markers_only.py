@@ -48,15 +48,19 @@ def check_markers(
             unknown=unknown,
         )
     m = {k: np.asarray(v, dtype=np.float64).reshape(3) for k, v in markers.items()}
-    align = align_markers({k: tpl.V[i] for k, i in tpl.landmarks.items()}, m)
-    s = float(align.similarity.s)
-    if not 0.5 <= s <= 1.6:
-        raise UnitsError(
-            f"the markers are {s:.3g} times the size of the template body: they do not look like "
-            "metres, +Y up (give units= and up=, or 'auto' to detect them)",
-            scale=s,
-        )
-    return align
+    tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
+    if len(m) >= 3:  # size first: markers in other units fail the alignment less clearly
+        P = np.array(list(m.values()))
+        Q = np.array([tl[k] for k in m])
+        spread = float(np.sqrt(((Q - Q.mean(0)) ** 2).sum()))
+        s = float(np.sqrt(((P - P.mean(0)) ** 2).sum())) / max(spread, 1e-12)
+        if np.isfinite(s) and not 0.5 <= s <= 1.6:
+            raise UnitsError(
+                f"the markers spread {s:.3g} times as far as the template's landmarks: they do "
+                "not look like a body in metres (give units= and up=, or 'auto' to detect them)",
+                scale=s,
+            )
+    return align_markers(tl, m)
 
 
 @single_blas_thread
