@@ -1,8 +1,8 @@
 """Matching without markers (paper §5.2 idea): fit shape-space weights, pose and a similarity.
 
 Measured (``python -m bench.matching``, seeds 0–5, full-size scans): 3.0–5.2 mm mean error from
-the shape space alone, 2.3–3.3 mm after the refinement rounds (with markers: 2.1–2.3 mm; ratio
-1.06–1.46), identical when the scan is turned 90°/180°/270° about the vertical; small test
+the shape space alone, 2.0–3.3 mm after the refinement rounds (with markers: 2.1–2.3 mm; ratio
+0.93–1.46), identical when the scan is turned 90°/180°/270° about the vertical; small test
 scans 4.0–6.3 mm.
 """
 
