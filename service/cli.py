@@ -27,6 +27,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from core.serialize import json_ready
+
 PROG = "bodyspace"
 OUT_FORMATS = (".ply", ".obj", ".glb")
 UNITS_CHOICES = ("auto", "m", "cm", "mm")
@@ -55,21 +57,6 @@ def _version() -> str:
         return version("bodyspace")
     except Exception:  # not installed (e.g. run from a source tree)
         return "0+unknown"
-
-
-def _json_ready(obj: Any) -> Any:
-    """Recursively make ``obj`` strict-JSON ready (NaN/Inf -> None, numpy -> Python)."""
-    if isinstance(obj, dict):
-        return {str(k): _json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json_ready(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_ready(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _json_ready(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 def _check_out_path(path: Path, formats: Sequence[str] = OUT_FORMATS, what: str = "--out") -> Path:
@@ -240,7 +227,7 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
     info["timing_s"]["total"] = sum(v for v in info["timing_s"].values())
     report = {**result.report.to_dict(), **info}
     if report_path is not None:
-        text = json.dumps(_json_ready(report), indent=2, allow_nan=False)
+        text = json.dumps(json_ready(report), indent=2, allow_nan=False)
         atomic_write(report_path, (text + "\n").encode("utf-8"))
     return report
 

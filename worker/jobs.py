@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import socket
 import threading
@@ -24,6 +23,7 @@ from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 from core.errors import BodyspaceError
+from core.serialize import json_ready
 from service.blobs import BlobStore, make_store, sha256_file
 from service.db import session_scope
 from service.errors import describe
@@ -60,22 +60,12 @@ def result_key(tenant_id: str, fit_id: str, fmt: str) -> str:
 def warm_up() -> None:
     """Build the template operators once per process so the first fit is not slower."""
     from core.registration.fit import template_operators
+    from core.registration.shape_prior import load_shape_basis
+    from core.rig import load_rig
 
     template_operators()
-
-
-def _json_ready(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json_ready(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_ready(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _json_ready(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+    load_shape_basis()
+    load_rig()
 
 
 def _claim(fit_id: str, task_id: str, settings: Settings) -> bool:
@@ -300,7 +290,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
                     last = now
                     done = p.stage + min(1.0, (p.iteration + 1) / stages[p.stage].max_iterations)
                     hb.beat(
-                        _json_ready(
+                        json_ready(
                             {
                                 "phase": "fitting",
                                 "stage": p.stage,
@@ -318,7 +308,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
 
             result = _run_core(row, scan, store, settings, on_progress)
             V, F = result.vertices, result.faces
-            report = _json_ready(result.report.to_dict())
+            report = json_ready(result.report.to_dict())
             keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
             files = {f: store.temp_file(f".{f}") for f in RESULT_FORMATS}
             write_glb(files["glb"], V, F)
