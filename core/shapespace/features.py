@@ -227,7 +227,9 @@ def fit_feature_map(
         lo, hi = float(x.min()), float(x.max())
         m, s = float(x.mean()), float(x.std())
         ranges[n] = (min(lo, m - RANGE_SD * s), max(hi, m + RANGE_SD * s))
-        if n != "male":  # sizes, weights and ages are positive
+        if n == "male":  # the sex indicator of a joint space
+            ranges[n] = (0.0, 1.0)
+        else:  # sizes, weights and ages are positive
             ranges[n] = (max(ranges[n][0], 0.0), ranges[n][1])
     return FeatureMap(
         names=names, M=M, mean=mean, cov=C, ranges=ranges,
