@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -292,22 +291,3 @@ def test_measure_is_fast(randoms):
     ms = 1e3 * float(np.median(times))
     print(f"\nmeasure(): {ms:.1f} ms CPU for {len(MEASUREMENTS)} measurements")
     assert ms < 100.0  # ~30 ms on an idle core; generous for loaded CI machines
-
-
-def test_sanity_print_against_ansur_means(tpl_m, randoms):
-    """Not an assertion: the template and random bodies next to ANSUR II means (mm, kg)."""
-    if not ANSUR.exists():
-        pytest.skip("ANSUR II data not available")
-    means = {}
-    for sex in ("female", "male"):
-        rows = list(csv.DictReader((ANSUR / f"ansur2_{sex}_dev.csv").open()))
-        means[sex] = {n: float(np.mean([float(r[n]) for r in rows])) for n in MEASUREMENTS}
-    ms = [measure(b.V) for b in randoms]
-    print(f"\n{'measurement':32s} {'tpl':>6s} {'random mean':>11s} {'ANSUR F':>8s} {'ANSUR M':>8s}")
-    for n in MEASUREMENTS:
-        k = 1.0 if n == "weightkg" else 1000.0
-        d = 10.0 if n == "weightkg" else 1.0
-        print(
-            f"{n:32s} {tpl_m[n] * k:6.0f} {np.mean([m[n] for m in ms]) * k:11.0f}"
-            f" {means['female'][n] / d:8.0f} {means['male'][n] / d:8.0f}"
-        )
