@@ -1,7 +1,7 @@
 """The bundled ANSUR II subset (``core/assets/ansur2/``) and its held-in/held-out split.
 
 ANSUR II (U.S. Army 2012 anthropometric survey, public domain; Gordon et al. 2014,
-NATICK/TR-15/007) development split, 50 of its columns (see ``core/assets/PROVENANCE.md``).
+NATICK/TR-15/007) development split, 53 of its columns (see ``core/assets/PROVENANCE.md``).
 Rows are returned in **SI units**: lengths in metres, ``weightkg`` in kilograms, ``Age`` in years.
 
 Split: a subject is *held out* when ``(subjectid * 2654435761) mod 2**32 < 0.2 * 2**32``

@@ -188,3 +188,15 @@ def test_out_of_range_is_a_clear_error(tiny):
         model.synthesize("male", {"shoe_size": 44})
     with pytest.raises(OutOfRangeError, match="sex"):
         model.synthesize("other", {"height_m": 1.7})
+
+
+def test_default_model_loads_and_synthesises():
+    from core.shapespace import default_model
+
+    m = default_model()
+    assert {"female", "male", "joint"} <= set(m.spaces)
+    V = m.synthesize("female", {"height_m": 1.65, "weight_kg": 65.0})
+    assert abs(body_height(V) - 1.65) < 1e-9
+    assert abs(m.weight_kg(V, "female") - 65.0) < 3.0
+    with pytest.raises(OutOfRangeError, match="height_m=3 m"):
+        m.synthesize("female", {"height_m": 3.0})
