@@ -389,9 +389,56 @@ def register_demo(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_demo)
 
 
+def _cmd_build_model(args: argparse.Namespace) -> int:
+    from core.shapespace import build_model
+
+    fits_dir = Path(args.fits_dir)
+    if not fits_dir.is_dir():
+        raise CliError(f"fits folder not found: {fits_dir}")
+    features = Path(args.features) if args.features else fits_dir / "features.csv"
+    features = _check_in_path(features, "features table")
+    out = Path(args.out)
+    if out.suffix.lower() != ".npz":
+        raise CliError(f"--out must be a .npz file, got {out.name!r}")
+    if not out.parent.is_dir():
+        raise CliError(f"the folder of --out does not exist: {out.parent}")
+    t0 = time.perf_counter()
+    model = build_model(
+        fits_dir, features, out, variance=args.variance, features=args.feature or None
+    )
+    if not args.quiet:
+        print(f"built {out} in {time.perf_counter() - t0:.1f} s")
+        print(json.dumps(_json_safe_summary(model.describe()), indent=2))
+    return 0
+
+
+def _json_safe_summary(d: dict) -> dict:
+    return json.loads(json.dumps(json_ready(d), default=str))
+
+
+def register_build_model(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "build-model",
+        help="build a shape space (PCA per sex + feature map) from a folder of fits",
+        description="Build a shape model from fitted bodies in template vertex order "
+        "(*.npz with 'vertices', *.ply or *.obj; m or mm) and a table of subject features "
+        "(CSV: id,sex,height_m,weight_kg[,age][,any measurement]).",
+    )
+    p.add_argument("fits_dir", metavar="FITS_DIR", help="folder of fit results")
+    p.add_argument("--features", metavar="CSV", help="default: FITS_DIR/features.csv")
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="where to write the model")
+    p.add_argument("--variance", type=float, default=0.98, help="share of variance kept")
+    p.add_argument(
+        "--feature", action="append", metavar="NAME",
+        help="a feature of the map (repeat; default height_m, weight_kg and age when present)",
+    )  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_build_model)
+
+
 # --------------------------------------------------------------------------- parser, main
 
-BUILTIN_COMMANDS: list[Registrar] = [register_fit, register_demo]
+BUILTIN_COMMANDS: list[Registrar] = [register_fit, register_demo, register_build_model]
 
 
 def _plugin_registrars() -> list[Registrar]:
