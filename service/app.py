@@ -23,6 +23,7 @@ from service.jobs import make_runner
 from service.routes import router
 from service.schemas import ErrorResponse, Health
 from service.settings import Settings, get_settings
+from service.shape_routes import router as models_router
 
 log = logging.getLogger("bodyspace.service")
 API_VERSION = "1.0.0"
@@ -73,6 +74,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings or get_settings()
     errors.install(app)
     app.include_router(router)
+    app.include_router(models_router)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> Health:

@@ -151,3 +151,75 @@ class Health(BaseModel):
     status: str
     mode: Literal["embedded", "distributed"] | None = None
     checks: dict[str, str] = Field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- shape models
+
+Sex = Literal["female", "male"]
+
+
+class FeatureRange(BaseModel):
+    range: list[float] = Field(description="[low, high] supported by the model")
+    unit: str
+
+
+class ModelSpace(BaseModel):
+    features: dict[str, FeatureRange] = Field(
+        description="feature name -> supported range and unit (measurements: ANSUR II names, m)"
+    )
+    components: int = Field(description="number of PCA components (length of a full `pca`)")
+    explained_variance: float
+    training_bodies: int
+    density_kg_m3: float
+
+
+class ModelOut(BaseModel):
+    """A shape model: what it accepts (sexes, features, ranges, components) and its provenance."""
+
+    name: str
+    sexes: list[Sex]
+    spaces: dict[str, ModelSpace] = Field(description="per sex (and 'joint', when present)")
+    metadata: dict[str, Any] = Field(default_factory=dict)
+    provenance: str = ""
+
+
+class ModelList(BaseModel):
+    items: list[ModelOut]
+
+
+class SynthesizeRequest(BaseModel):
+    """A body from features (``height_m``, ``weight_kg``, ``age`` and any measurement the model
+    lists, metres), from PCA weights (``pca``) or at random (``seed``; with features it draws the
+    individual variation around the most likely body). Missing features take their most likely
+    values given the others."""
+
+    model_config = ConfigDict(
+        extra="allow",
+        json_schema_extra={
+            "additionalProperties": {"type": "number"},
+            "examples": [
+                {"sex": "female", "height_m": 1.65, "weight_kg": 60},
+                {"sex": "male", "pca": [5.0, -2.0]},
+                {"sex": "male", "seed": 7},
+            ],
+        },
+    )
+
+    sex: Sex
+    height_m: float | None = Field(None, gt=0, allow_inf_nan=False, description="stature, m")
+    weight_kg: float | None = Field(None, gt=0, allow_inf_nan=False, description="kg")
+    age: float | None = Field(None, ge=0, allow_inf_nan=False, description="years")
+    pca: list[float] | None = Field(
+        None, min_length=1, description="PCA weights (metres), at most the model's components"
+    )
+    seed: int | None = Field(None, ge=0, lt=2**63, description="random body, reproducible")
+
+
+class SynthesizedBody(BaseModel):
+    """JSON variant of a synthesised body (``Accept: application/json``)."""
+
+    vertices: list[list[float]] = Field(description="(13380, 3), template order, metres, +Y up")
+    faces: list[list[int]] = Field(description="(m, 3) template triangles")
+    measurements: dict[str, float | None] = Field(
+        description="ANSUR II measurements of the body (metres; weightkg in kg)"
+    )

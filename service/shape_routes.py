@@ -1,0 +1,153 @@
+"""Routes under ``/v1/models``: list the shape models and synthesise bodies from them.
+
+Synthesis is synchronous (a few milliseconds): no job, nothing stored. Bodies come back as GLB
+(default) or, with ``Accept: application/json``, as vertices, faces and measurements (template
+order, metres, +Y up).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from functools import cache
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, Request, Response
+
+from service.deps import TenantId
+from service.errors import ApiError
+from service.schemas import ErrorResponse, ModelList, ModelOut, SynthesizedBody, SynthesizeRequest
+
+router = APIRouter(
+    prefix="/v1",
+    responses={
+        401: {"model": ErrorResponse, "description": "missing or invalid API key"},
+        404: {"model": ErrorResponse, "description": "no such model"},
+        422: {"model": ErrorResponse, "description": "invalid input or out of the model's range"},
+    },
+)
+
+GLB = "model/gltf-binary"
+SEXES = ("female", "male")
+
+
+def _default() -> Any:
+    from core.shapespace import default_model
+
+    return default_model()
+
+
+#: model name -> loader (each loaded once per process and cached).
+MODELS: dict[str, Callable[[], Any]] = {"default": _default}
+
+
+@cache
+def get_model(name: str) -> Any:
+    """The :class:`core.shapespace.ShapeModel` called ``name`` (404 when unknown)."""
+    loader = MODELS.get(name)
+    if loader is None:
+        raise ApiError("not_found", f"no model {name!r}; models: {', '.join(MODELS)}", model=name)
+    return loader()
+
+
+@cache
+def _template_faces() -> np.ndarray:
+    from core.template import load_template
+
+    return np.ascontiguousarray(load_template().F, dtype=np.int64)
+
+
+@cache
+def model_info(name: str) -> ModelOut:
+    d = get_model(name).describe()
+    return ModelOut(
+        name=name,
+        sexes=[s for s in SEXES if s in d["spaces"]],
+        spaces=d["spaces"],
+        metadata=d["metadata"],
+        provenance=d["provenance"],
+    )
+
+
+@router.get("/models", response_model=ModelList, tags=["models"])
+def list_models(tenant: TenantId) -> ModelList:
+    """The shape models: sexes, features with their supported ranges and units, PCA components
+    and provenance."""
+    return ModelList(items=[model_info(n) for n in MODELS])
+
+
+@router.get("/models/{model}", response_model=ModelOut, tags=["models"])
+def get_shape_model(model: str, tenant: TenantId) -> ModelOut:
+    """One shape model (as in the list)."""
+    get_model(model)
+    return model_info(model)
+
+
+def _features(body: SynthesizeRequest) -> dict[str, float]:
+    feats = {k: v for k in ("height_m", "weight_kg", "age") if (v := getattr(body, k)) is not None}
+    for k, v in (body.model_extra or {}).items():
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ApiError(
+                "validation_error", f"{k}: must be a finite number (metres), got {v!r}", field=k
+            )
+        feats[k] = float(v)
+    return feats
+
+
+def _wants_json(request: Request) -> bool:
+    accept = request.headers.get("accept", "").lower()
+    return "application/json" in accept and GLB not in accept
+
+
+@router.post(
+    "/models/{model}/synthesize",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "the body: GLB (default) or, with `Accept: application/json`, "
+            "vertices, faces and measurements (template order, metres, +Y up)",
+            "model": SynthesizedBody,
+            "content": {GLB: {"schema": {"type": "string", "format": "binary"}}},
+        },
+    },
+    tags=["models"],
+)
+def synthesize(model: str, body: SynthesizeRequest, request: Request, tenant: TenantId) -> Response:
+    """Synthesise a body from ``{sex, height_m?, weight_kg?, age?, <measurements>?}``, from
+    ``{sex, pca}`` or from ``{sex, seed}`` (synchronous). Values outside the model's supported
+    ranges answer 422 ``out_of_range`` naming the range (see ``GET /v1/models``)."""
+    m = get_model(model)
+    feats = _features(body)
+    if body.pca is not None:
+        if feats or body.seed is not None:
+            raise ApiError(
+                "validation_error", "give either pca weights, or features and/or a seed",
+                field="pca",
+            )  # fmt: skip
+        k = m.space(body.sex).pca.k
+        if len(body.pca) > k:
+            raise ApiError(
+                "validation_error", f"pca has {len(body.pca)} weights; this model has {k} "
+                f"components for {body.sex}", field="pca", components=k,
+            )  # fmt: skip
+        if not all(math.isfinite(w) for w in body.pca):
+            raise ApiError("validation_error", "pca weights must be finite numbers", field="pca")
+        V = m.synthesize(body.sex, pca=np.asarray(body.pca, dtype=np.float64))
+    else:
+        V = m.synthesize(body.sex, feats or None, seed=body.seed)
+    F = _template_faces()
+    if _wants_json(request):
+        from core.measure import measure
+
+        density = m.space(body.sex).density
+        meas = {
+            k: (float(v) if math.isfinite(v) else None)
+            for k, v in measure(V, density=density).items()
+        }
+        out = {"vertices": V.tolist(), "faces": F.tolist(), "measurements": meas}
+        return Response(json.dumps(out, separators=(",", ":")), media_type="application/json")
+    from core.io import write_glb
+
+    return Response(write_glb(None, V, F), media_type=GLB)
