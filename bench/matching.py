@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -36,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.registration import parse_seeds
+from bench.registration import _git_head, parse_seeds
 
 REPO = Path(__file__).resolve().parent.parent
 TURNS = (90.0, 180.0, 270.0)
@@ -283,16 +282,6 @@ def print_summary(s: dict[str, Any]) -> None:
         ("no failed runs", ok_all),
     ]  # fmt: skip
     print("  " + "; ".join(f"{name}: {_verdict(ok)}" for name, ok in checks))
-
-
-def _git_head() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True
-        )
-        return out.stdout.strip() or "?"
-    except OSError:
-        return "?"
 
 
 def main(argv: list[str] | None = None) -> int:
