@@ -353,7 +353,7 @@ def iter_fit(
         else:
             m_idx = marker_vid
         n_fact = 0
-        n_cg = 0
+        n_reused = 0
         converged = False
         en: dict[str, float] = {}
         it = 0
@@ -397,7 +397,7 @@ def iter_fit(
                 )
             x_new, stats = solver.solve(terms, x, x_reg)
             n_fact += int(stats.factorized)
-            n_cg += int(not stats.factorized)
+            n_reused += int(not stats.factorized)
             X_new = apply_affines(affines_from_x(x_new), level.V)
             step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / u
             x = x_new
@@ -418,7 +418,7 @@ def iter_fit(
                 en,
                 time.perf_counter() - t_stage,
                 n_fact,
-                n_cg,
+                n_reused,
             )
         )
 
