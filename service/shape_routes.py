@@ -119,6 +119,27 @@ def synthesize(model: str, body: SynthesizeRequest, request: Request, tenant: Te
     ``{sex, pca}`` or from ``{sex, seed}`` (synchronous). Values outside the model's supported
     ranges answer 422 ``out_of_range`` naming the range (see ``GET /v1/models``)."""
     m = get_model(model)
+    V = synthesize_vertices(m, body)
+    F = _template_faces()
+    if _wants_json(request):
+        from core.measure import measure
+
+        density = m.space(body.sex).density
+        meas = {
+            k: (float(v) if math.isfinite(v) else None)
+            for k, v in measure(V, density=density).items()
+        }
+        out = {"vertices": V.tolist(), "faces": F.tolist(), "measurements": meas}
+        return Response(json.dumps(out, separators=(",", ":")), media_type="application/json")
+    from core.io import write_glb
+
+    return Response(write_glb(None, V, F), media_type=GLB)
+
+
+def synthesize_vertices(m: Any, body: SynthesizeRequest) -> np.ndarray:
+    """(13380, 3) body of ``m`` for a synthesis request (features, ``pca`` or ``seed``), after
+    the checks the request needs beyond its schema (422 ``validation_error`` /
+    ``out_of_range``). Shared by ``POST /v1/models/{model}/synthesize`` and ``POST /v1/bodies``."""
     feats = _features(body)
     if body.pca is not None:
         if feats or body.seed is not None:
@@ -134,20 +155,5 @@ def synthesize(model: str, body: SynthesizeRequest, request: Request, tenant: Te
             )  # fmt: skip
         if not all(math.isfinite(w) for w in body.pca):
             raise ApiError("validation_error", "pca weights must be finite numbers", field="pca")
-        V = m.synthesize(body.sex, pca=np.asarray(body.pca, dtype=np.float64))
-    else:
-        V = m.synthesize(body.sex, feats or None, seed=body.seed)
-    F = _template_faces()
-    if _wants_json(request):
-        from core.measure import measure
-
-        density = m.space(body.sex).density
-        meas = {
-            k: (float(v) if math.isfinite(v) else None)
-            for k, v in measure(V, density=density).items()
-        }
-        out = {"vertices": V.tolist(), "faces": F.tolist(), "measurements": meas}
-        return Response(json.dumps(out, separators=(",", ":")), media_type="application/json")
-    from core.io import write_glb
-
-    return Response(write_glb(None, V, F), media_type=GLB)
+        return m.synthesize(body.sex, pca=np.asarray(body.pca, dtype=np.float64))
+    return m.synthesize(body.sex, feats or None, seed=body.seed)
