@@ -18,6 +18,7 @@ from fastapi.routing import APIRoute
 from service import errors
 from service.auth import ensure_local_key
 from service.blobs import make_store
+from service.body_routes import router as bodies_router
 from service.db import migrate, ping, session_scope
 from service.jobs import make_runner
 from service.routes import router
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     app.include_router(router)
     app.include_router(models_router)
+    app.include_router(bodies_router)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> Health:

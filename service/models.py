@@ -1,4 +1,4 @@
-"""SQLAlchemy 2 models: tenants, API keys (hashed), scans, fits (jobs) and blobs.
+"""SQLAlchemy 2 models: tenants, API keys (hashed), scans, fits (jobs), bodies and blobs.
 
 The ``fits`` row is the source of truth of a job: it is committed before the job is enqueued and
 every state change is a transaction on it. Schema changes go through Alembic
@@ -113,6 +113,36 @@ class Fit(Base):
     heartbeat_at: Mapped[datetime | None] = mapped_column(default=None)
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
     fit_seconds: Mapped[float | None] = mapped_column(default=None)
+
+
+class Body(Base):
+    """A stored body (template order, metres): synthesised from a shape model, taken from a
+    succeeded fit, or edited from another body. The vertices are a float64 ``.npy`` blob.
+
+    A body made from a fit, and every body edited from it, keeps that fit's id in ``fit_id``
+    (derived personal data): the row goes with the fit (``ON DELETE CASCADE``, so with its scan
+    too) and its blob lives under the fit's blob prefix (``<tenant>/fits/<fit>/bodies/…``),
+    which the fit's and the scan's ``DELETE`` remove.
+    """
+
+    __tablename__ = "bodies"
+    __table_args__ = (Index("ix_bodies_tenant_created", "tenant_id", "created_at", "id"),)
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    tenant_id: Mapped[str] = mapped_column(ForeignKey("tenants.id", ondelete="CASCADE"))
+    model: Mapped[str] = mapped_column(String(64))
+    sex: Mapped[str] = mapped_column(String(16))
+    source: Mapped[str] = mapped_column(String(16))  # model | fit | edit
+    fit_id: Mapped[str | None] = mapped_column(
+        ForeignKey("fits.id", ondelete="CASCADE"), index=True, default=None
+    )
+    derived_from: Mapped[str | None] = mapped_column(
+        ForeignKey("bodies.id", ondelete="SET NULL"), index=True, default=None
+    )
+    params: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the creating request
+    features: Mapped[dict[str, Any]] = mapped_column(default=dict)  # predicted by the model
+    blob_key: Mapped[str] = mapped_column(String(255))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 class Blob(Base):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -222,4 +222,111 @@ class SynthesizedBody(BaseModel):
     faces: list[list[int]] = Field(description="(m, 3) template triangles")
     measurements: dict[str, float | None] = Field(
         description="ANSUR II measurements of the body (metres; weightkg in kg)"
+    )
+
+
+# ----------------------------------------------------------------------------- bodies
+
+BodySource = Literal["model", "fit", "edit"]
+FiniteNumber = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+
+
+class BodyCreate(SynthesizeRequest):
+    """A body to store: synthesised from a shape model (the fields of
+    ``POST /v1/models/{model}/synthesize``: ``{sex, height_m?, weight_kg?, age?,
+    <measurement>?}``, ``{sex, pca}`` or ``{sex, seed}``), or the fitted body of a succeeded fit
+    (``{fit_id, sex}``: a scan has no sex, so it must be given)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "additionalProperties": {"type": "number"},
+            "examples": [
+                {"sex": "female", "height_m": 1.65, "weight_kg": 60},
+                {"model": "default", "sex": "male", "seed": 7},
+                {"sex": "male", "fit_id": "fit_0123456789abcdef0123"},
+            ],
+        },
+    )
+
+    model: str = Field("default", description="the shape model (`GET /v1/models`)")
+    fit_id: str | None = Field(
+        None, description="take the body of this succeeded fit (then only `sex` and `model`)"
+    )
+
+
+class BodyEdit(BaseModel):
+    """Change a body's features (paper §5): its PCA weights move by Δfeatures × the feature
+    map, its individual residual is kept, and the ``keep`` parts do not move."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {"delta": {"weight_kg": 10}},
+                {"delta": {"height_m": 0.05}, "target": {"weight_kg": 80}, "keep": []},
+            ]
+        },
+    )
+
+    delta: dict[str, FiniteNumber] = Field(
+        default_factory=dict,
+        description="feature -> change (height_m m, weight_kg kg, age years, measurements m)",
+    )
+    target: dict[str, FiniteNumber] = Field(
+        default_factory=dict,
+        description="feature -> absolute new value (turned into a change from the body's "
+        "current features); a feature may not be in both `delta` and `target`",
+    )
+    keep: list[str] | None = Field(
+        None,
+        description="template parts held in place (default head, hand_L, hand_R: face and "
+        "hands do not move); [] for the plain edit of the paper",
+    )
+
+
+class BodyOut(BaseModel):
+    """A stored body (its mesh: `GET /v1/bodies/{id}`)."""
+
+    id: str
+    model: str
+    sex: Sex
+    source: BodySource = Field(
+        description="'model': synthesised; 'fit': a fit's body; 'edit': edited from another"
+    )
+    fit_id: str | None = Field(
+        None, description="the fit it was made from (also for bodies edited from one)"
+    )
+    derived_from: str | None = Field(None, description="the body it was edited from")
+    params: dict[str, Any] = Field(description="the request that made it")
+    features: dict[str, float] = Field(
+        description="the model's features of the body: measured height_m (m) and weight_kg "
+        "(kg, volume x the model's density), the others (age years, measurements m) the most "
+        "likely given its shape"
+    )
+    created_at: datetime
+
+
+class BodyMesh(BodyOut):
+    """JSON variant of a body's mesh (``Accept: application/json``)."""
+
+    vertices: list[list[float]] = Field(description="(13380, 3), template order, metres, +Y up")
+    faces: list[list[int]] = Field(description="(m, 3) template triangles")
+
+
+class BodyPage(BaseModel):
+    items: list[BodyOut]
+    next_cursor: str | None = None
+
+
+class MeasurementValue(BaseModel):
+    value: float | None = Field(description="None when the body has no such section")
+    unit: str
+
+
+class BodyMeasurements(BaseModel):
+    body_id: str
+    sex: Sex
+    density_kg_m3: float = Field(description="the model's calibrated density (for weightkg)")
+    measurements: dict[str, MeasurementValue] = Field(
+        description="ANSUR II name -> value (metres; weightkg in kg)"
     )

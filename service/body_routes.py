@@ -1,0 +1,418 @@
+"""Routes under ``/v1/bodies``: stored bodies — synthesised from a shape model, taken from a
+succeeded fit, or edited from another body — their meshes and measurements.
+
+A body's vertices (template order, metres, +Y up) are stored at full precision as a float64
+``.npy`` blob; its row (``service.models.Body``) holds the model, sex, how it was made and the
+model's features of it. ``GET /v1/bodies/{id}`` and ``POST /v1/bodies/{id}/edit`` answer with
+the mesh as GLB, or with ``Accept: application/json`` as metadata + vertices + faces (like
+``POST /v1/models/{model}/synthesize``). A body made from a fit, and every body edited from it,
+is derived personal data: it is deleted with its fit, hence with its scan (see ``Body``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Depends, Query, Request, Response
+from sqlalchemy import delete
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from service.blobs import BlobStore
+from service.db import aware
+from service.deps import SessionDep, StoreDep, TenantId, require_json
+from service.errors import ApiError
+from service.models import Blob, Body, Fit, new_id
+from service.routes import _own, _page
+from service.schemas import (
+    BodyCreate,
+    BodyEdit,
+    BodyMeasurements,
+    BodyMesh,
+    BodyOut,
+    BodyPage,
+    BodySource,
+    ErrorResponse,
+    MeasurementValue,
+)
+from service.shape_routes import (
+    GLB,
+    MODELS,
+    _features,
+    _template_faces,
+    _wants_json,
+    get_model,
+    synthesize_vertices,
+)
+
+log = logging.getLogger("bodyspace.service")
+
+router = APIRouter(
+    prefix="/v1",
+    responses={
+        401: {"model": ErrorResponse, "description": "missing or invalid API key"},
+        404: {"model": ErrorResponse, "description": "not found (or another tenant's)"},
+        422: {"model": ErrorResponse, "description": "invalid input or out of the model's range"},
+    },
+)
+
+BLOB_KIND = "body.npy"
+MESH_RESPONSE: dict[str, Any] = {
+    "description": "the body: GLB (default) or, with `Accept: application/json`, its metadata, "
+    "vertices and faces (template order, metres, +Y up)",
+    "model": BodyMesh,
+    "content": {GLB: {"schema": {"type": "string", "format": "binary"}}},
+}
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _body_out(b: Body) -> BodyOut:
+    return BodyOut(
+        id=b.id,
+        model=b.model,
+        sex=b.sex,  # type: ignore[arg-type]
+        source=b.source,  # type: ignore[arg-type]
+        fit_id=b.fit_id,
+        derived_from=b.derived_from,
+        params=b.params or {},
+        features=b.features or {},
+        created_at=aware(b.created_at),  # type: ignore[arg-type]
+    )
+
+
+def _blob_prefix(tenant: str, body_id: str, fit_id: str | None) -> str:
+    """Bodies from a fit live under the fit's prefix, so that deleting the fit (or its scan)
+    removes them with its results."""
+    if fit_id is not None:
+        return f"{tenant}/fits/{fit_id}/bodies/{body_id}"
+    return f"{tenant}/bodies/{body_id}"
+
+
+def _features_of(model: str, sex: str, V: np.ndarray) -> dict[str, float]:
+    f = get_model(model).features_of(sex, V)
+    return {k: float(v) for k, v in f.items() if math.isfinite(v)}
+
+
+def _store_body(
+    session: Session,
+    store: BlobStore,
+    *,
+    tenant: str,
+    V: np.ndarray,
+    model: str,
+    sex: str,
+    source: str,
+    params: dict[str, Any],
+    fit_id: str | None = None,
+    derived_from: str | None = None,
+) -> Body:
+    """Write the vertices blob, then the rows (one transaction); the blob goes if the rows fail."""
+    from service.blobs import sha256_file
+
+    body_id = new_id("bdy")
+    prefix = _blob_prefix(tenant, body_id, fit_id)
+    key = f"{prefix}/vertices.npy"
+    features = _features_of(model, sex, V)
+    tmp = store.temp_file(".npy")
+    try:
+        with open(tmp, "wb") as f:
+            np.save(f, np.ascontiguousarray(V, dtype=np.float64), allow_pickle=False)
+        size, digest = tmp.stat().st_size, sha256_file(tmp)
+        store.commit_file(tmp, key)
+    finally:
+        tmp.unlink(missing_ok=True)
+    row = Body(
+        id=body_id,
+        tenant_id=tenant,
+        model=model,
+        sex=sex,
+        source=source,
+        fit_id=fit_id,
+        derived_from=derived_from,
+        params=params,
+        features=features,
+        blob_key=key,
+    )
+    try:
+        session.add(row)
+        session.flush()
+        session.add(
+            Blob(
+                key=key,
+                tenant_id=tenant,
+                fit_id=fit_id,
+                kind=BLOB_KIND,
+                content_type="application/octet-stream",
+                size_bytes=size,
+                sha256=digest,
+            )
+        )
+        session.commit()
+    except IntegrityError:  # the fit (or source body) was deleted meanwhile
+        session.rollback()
+        store.delete_prefix(prefix)
+        raise ApiError("not_found", "the fit or body it was made from has been deleted") from None
+    except BaseException:
+        session.rollback()
+        store.delete_prefix(prefix)
+        raise
+    return row
+
+
+def _load_vertices(store: BlobStore, key: str) -> np.ndarray:
+    try:
+        with store.local_copy(key) as p:
+            return np.load(p, allow_pickle=False)
+    except FileNotFoundError:
+        log.error("body blob %s is missing from storage", key)
+        raise ApiError("not_found", "the body's vertices are missing from storage") from None
+
+
+def _fit_vertices(store: BlobStore, tenant: str, fit: Fit) -> np.ndarray:
+    """The fitted body of a succeeded fit, at full precision (its PLY result holds doubles)."""
+    from core.io import read_mesh
+    from core.template import load_template
+    from worker.jobs import result_key
+
+    if fit.state != "succeeded":
+        raise ApiError("fit_not_ready", f"fit {fit.id} is {fit.state}", state=fit.state)
+    key = result_key(tenant, fit.id, "ply")
+    try:
+        with store.local_copy(key) as p:
+            V = read_mesh(p, "ply").V
+    except FileNotFoundError:
+        log.error("result %s of %s is missing from storage", key, fit.id)
+        raise ApiError("not_found", f"the result of fit {fit.id} is missing from storage") from None
+    n = load_template().n_vertices
+    if V.shape != (n, 3):
+        raise ApiError("validation_error", f"fit {fit.id} has {len(V)} vertices, expected {n}")
+    return V
+
+
+def _mesh_response(
+    request: Request, b: Body, V: np.ndarray, status: int = 200, **headers: str
+) -> Response:
+    F = _template_faces()
+    if _wants_json(request):
+        out = _body_out(b).model_dump(mode="json")
+        out["vertices"] = V.tolist()
+        out["faces"] = F.tolist()
+        return Response(
+            json.dumps(out, separators=(",", ":")),
+            status_code=status,
+            media_type="application/json",
+            headers=headers,
+        )
+    from core.io import write_glb
+
+    return Response(write_glb(None, V, F), status_code=status, media_type=GLB, headers=headers)
+
+
+# ----------------------------------------------------------------------------- routes
+
+
+@router.post(
+    "/bodies",
+    status_code=201,
+    response_model=BodyOut,
+    dependencies=[Depends(require_json)],
+    responses={
+        409: {"model": ErrorResponse, "description": "the fit has not succeeded"},
+        415: {"model": ErrorResponse, "description": "not application/json"},
+    },
+    tags=["bodies"],
+)
+def create_body(
+    body: BodyCreate, response: Response, tenant: TenantId, session: SessionDep, store: StoreDep
+) -> BodyOut:
+    """Store a body synthesised from a shape model (``{model?, sex, height_m?, weight_kg?, age?,
+    <measurement>?}``, ``{model?, sex, pca}`` or ``{model?, sex, seed}``, as in
+    ``POST /v1/models/{model}/synthesize``) or the fitted body of a succeeded fit
+    (``{fit_id, sex}``; a scan carries no sex, so it is required): ``201`` + ``Location``."""
+    if body.model not in MODELS:
+        raise ApiError(
+            "validation_error",
+            f"no model {body.model!r}; models: {', '.join(MODELS)}",
+            field="model",
+        )
+    m = get_model(body.model)
+    if body.fit_id is not None:
+        if _features(body) or body.pca is not None or body.seed is not None:
+            raise ApiError(
+                "validation_error",
+                "a body from a fit takes only fit_id, sex and model (no features, pca or seed)",
+                field="fit_id",
+            )
+        m.space(body.sex)  # the model has this sex (else out_of_range)
+        fit = _own(session, Fit, body.fit_id, tenant, "fit")
+        V = _fit_vertices(store, tenant, fit)
+        params: dict[str, Any] = {"fit_id": fit.id}
+        row = _store_body(
+            session, store, tenant=tenant, V=V, model=body.model, sex=body.sex,
+            source="fit", params=params, fit_id=fit.id,
+        )  # fmt: skip
+    else:
+        V = synthesize_vertices(m, body)
+        params = body.model_dump(exclude={"model", "sex", "fit_id"}, exclude_none=True)
+        row = _store_body(
+            session, store, tenant=tenant, V=V, model=body.model, sex=body.sex,
+            source="model", params=params,
+        )  # fmt: skip
+    response.headers["Location"] = f"/v1/bodies/{row.id}"
+    return _body_out(row)
+
+
+@router.get("/bodies", response_model=BodyPage, tags=["bodies"])
+def list_bodies(
+    tenant: TenantId,
+    session: SessionDep,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    cursor: str | None = None,
+    fit_id: str | None = None,
+    source: BodySource | None = None,
+) -> BodyPage:
+    """The caller's bodies, newest first (``next_cursor`` pages on); filter by ``fit_id`` and
+    ``source``."""
+    where = [Body.tenant_id == tenant]
+    if fit_id:
+        where.append(Body.fit_id == fit_id)
+    if source:
+        where.append(Body.source == source)
+    rows, nxt = _page(session, Body, where, limit, cursor)
+    return BodyPage(items=[_body_out(r) for r in rows], next_cursor=nxt)
+
+
+@router.get(
+    "/bodies/{body_id}", response_class=Response, responses={200: MESH_RESPONSE}, tags=["bodies"]
+)
+def get_body(
+    body_id: str, request: Request, tenant: TenantId, session: SessionDep, store: StoreDep
+) -> Response:
+    """A body's mesh: GLB, or with ``Accept: application/json`` its metadata, vertices and
+    faces."""
+    b = _own(session, Body, body_id, tenant, "body")
+    return _mesh_response(request, b, _load_vertices(store, b.blob_key))
+
+
+@router.get("/bodies/{body_id}/measurements", response_model=BodyMeasurements, tags=["bodies"])
+def get_body_measurements(
+    body_id: str, tenant: TenantId, session: SessionDep, store: StoreDep
+) -> BodyMeasurements:
+    """The body's ANSUR II measurements (ISO 7250-1 definitions, ``core.measure``): metres, and
+    ``weightkg`` = volume x the model's calibrated density for the body's sex."""
+    from core.measure import MEASUREMENTS, measure
+
+    b = _own(session, Body, body_id, tenant, "body")
+    V = _load_vertices(store, b.blob_key)
+    density = float(get_model(b.model).space(b.sex).density)
+    values = measure(V, density=density)
+    out = {
+        k: MeasurementValue(
+            value=float(v) if math.isfinite(v) else None,
+            unit=MEASUREMENTS[k].unit if k in MEASUREMENTS else "m",
+        )
+        for k, v in values.items()
+    }
+    return BodyMeasurements(body_id=b.id, sex=b.sex, density_kg_m3=density, measurements=out)  # type: ignore[arg-type]
+
+
+def _edit_delta(m: Any, sex: str, V: np.ndarray, edit: BodyEdit) -> dict[str, float]:
+    """``delta`` plus the changes ``target`` asks for; unknown names and resulting values outside
+    the model's ranges are 422 ``out_of_range`` (the core's errors)."""
+    from core.shapespace import OutOfRangeError
+
+    space = m.space(sex)
+    names = space.features.names
+    both = sorted(set(edit.delta) & set(edit.target))
+    if both:
+        raise ApiError(
+            "validation_error", f"{', '.join(both)}: give either a delta or a target", field=both[0]
+        )
+    if not edit.delta and not edit.target:
+        raise ApiError(
+            "validation_error", "nothing to edit: give delta and/or target", field="delta"
+        )
+    for name in [*edit.delta, *edit.target]:
+        if name not in names:
+            raise OutOfRangeError(
+                f"unknown feature {name!r}; this model edits {', '.join(names)}",
+                feature=name,
+                accepted=list(names),
+            )
+    now = m.features_of(sex, V)
+    delta = {k: float(v) for k, v in edit.delta.items()}
+    delta.update({k: float(v) - now[k] for k, v in edit.target.items()})
+    for k, dv in delta.items():
+        if k not in ("height_m", "weight_kg"):  # those two the core checks itself
+            space.features.check_value(k, now[k] + dv)
+    return delta
+
+
+@router.post(
+    "/bodies/{body_id}/edit",
+    status_code=201,
+    response_class=Response,
+    dependencies=[Depends(require_json)],
+    responses={
+        201: MESH_RESPONSE,
+        415: {"model": ErrorResponse, "description": "not application/json"},
+    },
+    tags=["bodies"],
+)
+def edit_body(
+    body_id: str,
+    edit: BodyEdit,
+    request: Request,
+    tenant: TenantId,
+    session: SessionDep,
+    store: StoreDep,
+) -> Response:
+    """Edit a body's features (``{"delta": {"weight_kg": 10}}``, ``{"target": {"height_m":
+    1.8}}``): the individual residual is kept, face and hands stay in place unless ``keep``
+    says otherwise. The result is a new stored body (``201``, ``Location``, ``derived_from``),
+    answered as GLB or, with ``Accept: application/json``, metadata + vertices + faces.
+    Results outside the model's ranges are 422 ``out_of_range``."""
+    from core.template import load_template
+
+    src = _own(session, Body, body_id, tenant, "body")
+    parts = load_template().part_names
+    keep = tuple(edit.keep) if edit.keep is not None else ("head", "hand_L", "hand_R")
+    bad = [p for p in keep if p not in parts]
+    if bad:
+        raise ApiError(
+            "validation_error",
+            f"keep: unknown part(s) {', '.join(map(repr, bad))}; parts: {', '.join(parts)}",
+            field="keep",
+            accepted=list(parts),
+        )
+    m = get_model(src.model)
+    V = _load_vertices(store, src.blob_key)
+    delta = _edit_delta(m, src.sex, V, edit)
+    V2 = m.edit(src.sex, V, delta, keep=keep)
+    params = {"delta": delta, "keep": list(keep)}
+    if edit.target:
+        params["target"] = dict(edit.target)
+    row = _store_body(
+        session, store, tenant=tenant, V=V2, model=src.model, sex=src.sex, source="edit",
+        params=params, fit_id=src.fit_id, derived_from=src.id,
+    )  # fmt: skip
+    return _mesh_response(request, row, V2, 201, Location=f"/v1/bodies/{row.id}")
+
+
+@router.delete("/bodies/{body_id}", status_code=204, tags=["bodies"])
+def delete_body(body_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+    """Delete a body and its blob (bodies edited from it are kept; their ``derived_from``
+    becomes null)."""
+    b = _own(session, Body, body_id, tenant, "body")
+    prefix = b.blob_key.rsplit("/", 1)[0]
+    session.execute(delete(Blob).where(Blob.key == b.blob_key))
+    session.execute(delete(Body).where(Body.id == b.id))
+    session.commit()
+    store.delete_prefix(prefix)
+    return Response(status_code=204)
