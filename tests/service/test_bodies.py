@@ -16,7 +16,15 @@ import pytest
 from core.io import read_mesh
 from core.synth import random_body
 from core.template import load_template
-from service.testing import glb_vertices, upload_scan, validate_glb, wait_state
+from service.testing import (
+    free_port,
+    glb_vertices,
+    service_env,
+    start_server,
+    upload_scan,
+    validate_glb,
+    wait_state,
+)
 
 JSON = {"Accept": "application/json"}
 FAST = {"schedule": "fast"}
@@ -367,3 +375,66 @@ def test_body_from_a_fit_that_did_not_succeed_is_409(client, sim):
     assert r.status_code == 409, r.text
     assert r.json()["error"]["code"] == "fit_not_ready"
     client.delete(f"/v1/scans/{scan['id']}")
+
+
+# ----------------------------------------------------------------------------- database blobs
+
+
+@pytest.fixture(scope="module")
+def db_blob_server(tmp_path_factory):
+    """A second server whose blobs live in the database (``BODYSPACE_BLOB_BACKEND=database``)."""
+    data = tmp_path_factory.mktemp("dbblobs")
+    env = service_env(
+        {
+            "BODYSPACE_DATA_DIR": str(data),
+            "BODYSPACE_API_KEY": "k-db",
+            "BODYSPACE_BLOB_BACKEND": "database",
+        }
+    )
+    port = free_port()
+    proc = start_server(env, port, data / "server.log")
+    try:
+        yield {"url": f"http://127.0.0.1:{port}", "data": data}
+    finally:
+        proc.stop()
+
+
+def test_bodies_with_database_blobs(db_blob_server):
+    import httpx
+
+    with httpx.Client(
+        base_url=db_blob_server["url"], headers={"X-API-Key": "k-db"}, timeout=60
+    ) as c:
+        src = _create(c, sex="female", height_m=1.60, weight_kg=55)
+        V0 = _mesh(c, src["id"])
+        syn = c.post(
+            "/v1/models/default/synthesize",
+            json={"sex": "female", "height_m": 1.60, "weight_kg": 55},
+            headers=JSON,
+        )
+        np.testing.assert_array_equal(np.asarray(syn.json()["vertices"]), V0)
+        r = c.post(f"/v1/bodies/{src['id']}/edit", json={"delta": {"weight_kg": -5}}, headers=JSON)
+        assert r.status_code == 201, r.text
+        assert abs(r.json()["features"]["weight_kg"] - src["features"]["weight_kg"] + 5) < 0.5
+        db = db_blob_server["data"] / "bodyspace.db"
+        like = f"%/bodies/{src['id']}/vertices.npy"
+        with sqlite3.connect(db) as conn:
+            assert (
+                conn.execute("SELECT COUNT(*) FROM blob_data WHERE key LIKE ?", [like]).fetchone()[
+                    0
+                ]
+                == 1
+            )
+        assert c.delete(f"/v1/bodies/{src['id']}").status_code == 204
+        with sqlite3.connect(db) as conn:
+            assert (
+                conn.execute("SELECT COUNT(*) FROM blob_data WHERE key LIKE ?", [like]).fetchone()[
+                    0
+                ]
+                == 0
+            )
+            assert (
+                conn.execute("SELECT COUNT(*) FROM blobs WHERE key LIKE ?", [like]).fetchone()[0]
+                == 0
+            )
+        assert c.get(f"/v1/bodies/{src['id']}").status_code == 404
