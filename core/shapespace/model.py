@@ -97,6 +97,21 @@ def _keep_weights(parts: tuple[str, ...], blend_m: float) -> np.ndarray:
     return w
 
 
+def _follow_parts(parts: tuple[str, ...], D: np.ndarray) -> np.ndarray:
+    """(13380, 3): each kept part's mean displacement under ``D``, spread over the part and its
+    blend zone (weighted by nearness where zones meet), zero elsewhere."""
+    tpl = load_template()
+    num = np.zeros_like(D)
+    den = np.zeros((len(D), 1))
+    for p in parts:
+        a = 1.0 - _keep_weights((p,), KEEP_BLEND_M)[:, None]
+        mask = tpl.part_mask(p)
+        if mask.any():
+            num += a * D[mask].mean(axis=0)
+            den += a
+    return np.divide(num, den, out=np.zeros_like(D), where=den > 0)
+
+
 @dataclass
 class ShapeModel:
     """Shape spaces per sex (and joint), their feature maps, metadata and provenance."""
@@ -244,7 +259,10 @@ class ShapeModel:
         The body's PCA weights move by ``Δf @ M`` (``Δf`` the change of the encoded features,
         e.g. of weight^(1/3) for ``weight_kg``), its residual (the part of ``V`` outside the
         space) is kept, and the displacement fades to zero on the ``keep`` parts (face/head and
-        hands by default) so that they do not move.
+        hands by default) so that they do not move. A ``height_m`` change moves them rigidly
+        instead (each by the mean displacement the height change gives it): their shape is kept
+        while they follow the taller or shorter body — a head held in place would cancel the
+        change of stature.
 
         Parameters
         ----------
@@ -252,8 +270,8 @@ class ShapeModel:
         V : (13380, 3) body, metres, template order, any rigid placement (returned in the same).
         delta : feature -> change in user units, e.g. ``{"weight_kg": 10}`` or
             ``{"height_m": 0.05}``.
-        keep : template parts left in place (``core.template.Template.part_names``); () for
-            the plain paper edit.
+        keep : template parts left in place (``core.template.Template.part_names``), or only
+            translated for a ``height_m`` change; () for the plain paper edit.
         exact : for a ``weight_kg`` (or ``height_m``) change, scale the edit so that the
             reported weight (stature) changes by exactly the requested amount.
 
@@ -286,15 +304,21 @@ class ShapeModel:
             else:
                 d_enc.append(dv)
             names.append(name)
-        dW = s.features.delta_weights(names, np.array(d_enc))
-        D = (dW @ s.pca.components.astype(np.float64)).reshape(-1, 3)
+        C = s.pca.components.astype(np.float64)
+        D = (s.features.delta_weights(names, np.array(d_enc)) @ C).reshape(-1, 3)
         if keep:
-            D = D * _keep_weights(tuple(keep), KEEP_BLEND_M)[:, None]
+            w = _keep_weights(tuple(keep), KEEP_BLEND_M)[:, None]
+            follow = 0.0
+            if "height_m" in names:
+                i = names.index("height_m")
+                Dh = s.features.delta_weights(["height_m"], np.array(d_enc[i : i + 1])) @ C
+                follow = _follow_parts(tuple(keep), Dh.reshape(-1, 3))
+            D = D * w + (1.0 - w) * follow
         scale = 1.0
         target = None
         if exact and "weight_kg" in delta:
             target = ("weight_kg", now["weight_kg"] + float(delta["weight_kg"]))
-        elif exact and "height_m" in delta and not keep:
+        elif exact and "height_m" in delta:
             target = ("height_m", now["height_m"] + float(delta["height_m"]))
         if target is not None:
 

@@ -160,6 +160,19 @@ def test_edit_keeps_residual_and_hits_weight(tiny):
     assert abs(model.weight_kg(E2, "male") - model.weight_kg(V, "male") - 5.0) < 0.05
 
 
+def test_height_edit_moves_kept_parts_rigidly(tiny):
+    model, bodies, rows = tiny
+    i = next(j for j, r in enumerate(rows) if r["sex"] == "female")
+    V = bodies[i]
+    tpl = load_template()
+    E = model.edit("female", V, {"height_m": 0.03})  # default keep: head and hands
+    assert abs(body_height(E) - body_height(V) - 0.03) < 1e-4  # a pinned head would give ~0
+    for part in ("head", "hand_L", "hand_R"):
+        D = (E - V)[tpl.part_mask(part)]
+        assert np.abs(D - D.mean(axis=0)).max() < 1e-9  # shape kept: a pure translation
+    assert (E - V)[tpl.part_mask("head"), 1].mean() > 0.02  # the head follows the taller body
+
+
 def test_save_load_round_trip(tiny, tmp_path):
     model, _, _ = tiny
     model.save(tmp_path / "m.npz")
