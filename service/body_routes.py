@@ -374,10 +374,11 @@ def edit_body(
     store: StoreDep,
 ) -> Response:
     """Edit a body's features (``{"delta": {"weight_kg": 10}}``, ``{"target": {"height_m":
-    1.8}}``): the individual residual is kept, face and hands stay in place unless ``keep``
-    says otherwise. The result is a new stored body (``201``, ``Location``, ``derived_from``),
-    answered as GLB or, with ``Accept: application/json``, metadata + vertices + faces.
-    Results outside the model's ranges are 422 ``out_of_range``."""
+    1.8}}``): the individual residual is kept, face and hands stay in place (for a height change
+    they keep their shape and shift with the body) unless ``keep`` says otherwise. The result
+    is a new stored body (``201``, ``Location``, ``derived_from``), answered as GLB or, with
+    ``Accept: application/json``, metadata + vertices + faces. Results outside the model's
+    ranges are 422 ``out_of_range``."""
     from core.template import load_template
 
     src = _own(session, Body, body_id, tenant, "body")

@@ -280,7 +280,8 @@ class BodyEdit(BaseModel):
     keep: list[str] | None = Field(
         None,
         description="template parts held in place (default head, hand_L, hand_R: face and "
-        "hands do not move); [] for the plain edit of the paper",
+        "hands do not move; a height_m change shifts them rigidly with the body); [] for the "
+        "plain edit of the paper",
     )
 
 

@@ -156,7 +156,16 @@ def test_edit_glb_by_default_and_options(client, tmp_path, gltf_validator):
     path.write_bytes(r.content)
     assert validate_glb(path)["errors"] == 0
     new_id = r.headers["location"].rsplit("/", 1)[-1]
-    np.testing.assert_allclose(glb_vertices(r.content), _mesh(client, new_id), atol=1e-6)
+    V1 = _mesh(client, new_id)
+    np.testing.assert_allclose(glb_vertices(r.content), V1, atol=1e-6)
+    taller = client.get(f"/v1/bodies/{new_id}", headers=JSON).json()["features"]["height_m"]
+    assert abs(taller - src["features"]["height_m"] - 0.05) < 0.002
+    # face and hands keep their shape and follow the taller body (a rigid shift)
+    tpl = load_template()
+    for part in KEPT:
+        D = (V1 - V0)[tpl.part_mask(part)]
+        assert np.linalg.norm(D - D.mean(axis=0), axis=1).max() < 1e-6
+    assert (V1 - V0)[tpl.part_mask("head"), 1].mean() > 0.04
 
     # keep=[]: the plain paper edit moves the head and hands too; a target is an absolute value
     r = client.post(
