@@ -1,0 +1,167 @@
+"""Fast GLB encoding of many meshes that share one triangle list (bodies in template order).
+
+:func:`core.io.write_glb` handles any mesh and does all its work per call. A service that sends
+thousands of bodies with the same faces can precompute what does not change:
+:class:`FixedTopologyGlb` builds once the index buffer bytes, a sparse vertex <- face matrix that
+sums face normals into vertex normals, the buffer layout and the JSON chunk around the only
+per-body values (the POSITION ``min``/``max``). Its output is byte-for-byte what
+``write_glb(None, V, F)`` writes for the same ``V`` and ``F`` (same layout, same area-weighted
+normals summed in the same order), in about a tenth of the time.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+from scipy import sparse
+
+from core.errors import InputFormatError
+from core.io._geometry import normalize
+
+_GLTF_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+_MIN, _MAX = "@@POSITION_MIN@@", "@@POSITION_MAX@@"
+
+
+def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
+    return b + fill * (-len(b) % 4)
+
+
+def _normalize(N: np.ndarray) -> np.ndarray:
+    """:func:`core.io._geometry.normalize` (same values: the same sum x² + y² + z² in the same
+    order, the same division), without its masking when every row has a length."""
+    x, y, z = N[:, 0], N[:, 1], N[:, 2]
+    L = np.sqrt(x * x + y * y + z * z)
+    if not (L > 1e-30).all() or not np.isfinite(L).all():
+        return normalize(N)
+    return N / L[:, None]
+
+
+class FixedTopologyGlb:
+    """GLB 2.0 encoder for meshes with ``n_vertices`` vertices and the triangles ``F``.
+
+    Parameters
+    ----------
+    F : (m, 3) int triangles, indices in ``[0, n_vertices)``; m >= 1.
+    n_vertices : number of vertices of every mesh to encode.
+
+    Examples
+    --------
+    >>> enc = FixedTopologyGlb(template.F, 13380)      # once
+    >>> data = enc.encode(V)                           # per body, (13380, 3) metres
+    """
+
+    def __init__(self, F: np.ndarray, n_vertices: int) -> None:
+        F = np.asarray(F)
+        n = int(n_vertices)
+        if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+            raise ValueError(f"F must have shape (m, 3) with m >= 1, got {F.shape}")
+        if n <= 0:
+            raise ValueError(f"n_vertices must be positive, got {n}")
+        F = F.astype(np.int64)
+        if F.min() < 0 or F.max() >= n:
+            raise ValueError(f"F indexes vertices {int(F.min())}..{int(F.max())}, n_vertices {n}")
+        m = len(F)
+        self.n_vertices, self.n_faces = n, m
+        self._f0, self._f1, self._f2 = (np.ascontiguousarray(F[:, c]) for c in range(3))
+        # vertex normal = sum of the area-weighted normals of its faces, in face order (the CSR
+        # columns are sorted, so each row sums in the same order as write_glb's bincount)
+        ones = np.ones(3 * m)
+        self._acc = sparse.csr_matrix((ones, (F.ravel(), np.repeat(np.arange(m), 3))), (n, m))
+        self._acc.sum_duplicates()
+        self._acc.sort_indices()
+        if n < 65535:
+            idx, ctype = F.astype(np.uint16), 5123
+        else:
+            idx, ctype = F.astype(np.uint32), 5125
+        self._idx = _pad4(np.ascontiguousarray(idx).ravel().tobytes())
+        vec = 12 * n  # float32 VEC3, a multiple of 4
+        views = [
+            {"buffer": 0, "byteOffset": 0, "byteLength": vec, "target": 34962},
+            {"buffer": 0, "byteOffset": vec, "byteLength": vec, "target": 34962},
+            {"buffer": 0, "byteOffset": 2 * vec, "byteLength": idx.nbytes, "target": 34963},
+        ]
+        accessors = [
+            {"componentType": 5126, "count": n, "type": "VEC3", "min": _MIN, "max": _MAX},
+            {"componentType": 5126, "count": n, "type": "VEC3"},
+            {
+                "componentType": ctype,
+                "count": int(idx.size),
+                "type": "SCALAR",
+                "min": [int(idx.min())],
+                "max": [int(idx.max())],
+            },
+        ]
+        for i, acc in enumerate(accessors):
+            acc["bufferView"] = i
+        self._bin_len = 2 * vec + len(self._idx)
+        gltf = {
+            "asset": {"version": "2.0", "generator": "bodyspace"},
+            "scene": 0,
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0, "name": "body"}],
+            "meshes": [
+                {
+                    "name": "body",
+                    "primitives": [
+                        {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "mode": 4}
+                    ],
+                }
+            ],
+            "buffers": [{"byteLength": self._bin_len}],
+            "bufferViews": views,
+            "accessors": accessors,
+        }
+        js = json.dumps(gltf, separators=(",", ":"))
+        head, rest = js.split(f'"{_MIN}"')
+        mid, tail = rest.split(f'"{_MAX}"')
+        self._js = (head.encode(), mid.encode(), tail.encode())
+        self._bin_header = struct.pack("<II", self._bin_len, _BIN)
+
+    def normals(self, V: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 area-weighted unit vertex normals (``(0, 1, 0)`` where no area)."""
+        V = np.asarray(V, dtype=np.float64)
+        a = V.take(self._f0, axis=0)  # take: several times faster than V[idx] here
+        b = V.take(self._f1, axis=0) - a
+        c = V.take(self._f2, axis=0) - a
+        fn = np.empty_like(b)
+        fn[:, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
+        fn[:, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
+        fn[:, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
+        return _normalize(self._acc @ fn)
+
+    def encode(self, V: np.ndarray) -> bytes:
+        """The GLB of the mesh with vertices ``V`` ((n, 3), metres, +Y up) and normals.
+
+        Raises
+        ------
+        InputFormatError
+            ``V`` has the wrong shape or non-finite values.
+        """
+        V = np.asarray(V, dtype=np.float64)
+        if V.shape != (self.n_vertices, 3):
+            raise InputFormatError(f"V must have shape ({self.n_vertices}, 3), got {V.shape}")
+        if not np.isfinite(V).all():
+            raise InputFormatError(
+                f"V has {int((~np.isfinite(V).all(1)).sum())} non-finite vertices; cannot write"
+            )
+        pos = V.astype(np.float32)
+        nrm = _normalize(self.normals(V).astype(np.float32).astype(np.float64)).astype(np.float32)
+        # per column: a reduction over axis 0 of an (n, 3) array is ~10x slower
+        lo = json.dumps([float(pos[:, i].min()) for i in range(3)], separators=(",", ":"))
+        hi = json.dumps([float(pos[:, i].max()) for i in range(3)], separators=(",", ":"))
+        head, mid, tail = self._js
+        js = head + lo.encode() + mid + hi.encode() + tail
+        js += b" " * (-len(js) % 4)
+        total = 12 + 8 + len(js) + 8 + self._bin_len
+        return b"".join(
+            (
+                struct.pack("<IIIII", _GLTF_MAGIC, 2, total, len(js), _JSON),
+                js,
+                self._bin_header,
+                pos.tobytes(),
+                nrm.tobytes(),
+                self._idx,
+            )
+        )
