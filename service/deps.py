@@ -6,10 +6,11 @@ from collections.abc import Iterator
 from typing import Annotated
 
 from fastapi import Depends, Request, Security
+from fastapi.concurrency import run_in_threadpool
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from service.auth import tenant_for_key
+from service.auth import KeyCache, hash_key, tenant_for_hash
 from service.blobs import BlobStore
 from service.db import session_scope
 from service.errors import ApiError
@@ -37,20 +38,44 @@ def get_session(request: Request) -> Iterator[Session]:
         yield s
 
 
-def get_tenant(
+def key_cache(request: Request) -> KeyCache:
+    """The process's API-key cache (created on first use from the app's settings)."""
+    state = request.app.state
+    cache = getattr(state, "key_cache", None)
+    if cache is None:
+        st: Settings = state.settings
+        cache = state.key_cache = KeyCache(st.api_key_cache_ttl_s, st.api_key_cache_size)
+    return cache
+
+
+def _lookup(settings: Settings, key_hash: str) -> str | None:
+    with session_scope(settings) as s:
+        return tenant_for_hash(s, key_hash)
+
+
+async def get_tenant(
     request: Request,
     bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
     api_key: Annotated[str | None, Security(_api_key)],
 ) -> str:
-    """The tenant id of the request's API key (401 when missing or invalid)."""
+    """The tenant id of the request's API key (401 when missing or invalid).
+
+    Answers from the process's :class:`~service.auth.KeyCache` when it can (no database session,
+    no thread hop); otherwise looks the key up in a worker thread and caches the answer for
+    ``BODYSPACE_API_KEY_CACHE_TTL_S``.
+    """
     key = bearer.credentials if bearer is not None else api_key
     if not key:
         raise ApiError("missing_api_key")
-    with session_scope(request.app.state.settings) as s:
-        tenant = tenant_for_key(s, key.strip())
+    h = hash_key(key.strip())
+    cache = key_cache(request)
+    tenant = cache.get(h)
+    if tenant is KeyCache.MISS:
+        tenant = await run_in_threadpool(_lookup, request.app.state.settings, h)
+        cache.put(h, tenant)
     if tenant is None:
         raise ApiError("invalid_api_key")
-    return tenant
+    return tenant  # type: ignore[return-value]
 
 
 def require_json(request: Request) -> None:

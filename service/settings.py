@@ -29,6 +29,12 @@ class Settings(BaseSettings):
         "folder", description="'folder' (BLOB_DIR, a shared mount when distributed) or 'database'"
     )
     api_key: str | None = Field(None, description="embedded mode: the local tenant's key")
+    api_key_cache_ttl_s: float = Field(
+        30.0,
+        description="seconds an API key's lookup is reused in a process (a revoked or deleted "
+        "key keeps working at most this long); 0 disables the cache",
+    )
+    api_key_cache_size: int = Field(10_000, description="API keys cached per process (LRU)")
 
     # limits
     max_upload_bytes: int = 200 * 1024 * 1024
