@@ -60,6 +60,20 @@ def _template_faces() -> np.ndarray:
 
 
 @cache
+def _glb_encoder() -> Any:
+    from core.io.glb import FixedTopologyGlb
+    from core.template import load_template
+
+    return FixedTopologyGlb(_template_faces(), load_template().n_vertices)
+
+
+def body_glb(V: np.ndarray) -> bytes:
+    """GLB of a body in template order (the same bytes as ``write_glb(None, V, template F)``,
+    with the index buffer, normal accumulation and JSON chunk precomputed once)."""
+    return _glb_encoder().encode(V)
+
+
+@cache
 def model_info(name: str) -> ModelOut:
     d = get_model(name).describe()
     return ModelOut(
@@ -131,9 +145,7 @@ def synthesize(model: str, body: SynthesizeRequest, request: Request, tenant: Te
         }
         out = {"vertices": V.tolist(), "faces": F.tolist(), "measurements": meas}
         return Response(json.dumps(out, separators=(",", ":")), media_type="application/json")
-    from core.io import write_glb
-
-    return Response(write_glb(None, V, F), media_type=GLB)
+    return Response(body_glb(V), media_type=GLB)
 
 
 def synthesize_vertices(m: Any, body: SynthesizeRequest) -> np.ndarray:
