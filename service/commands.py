@@ -12,12 +12,26 @@ import argparse
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from service.settings import get_settings
+
+    if args.workers < 1:
+        print("bodyspace: error: --workers must be at least 1", flush=True)
+        return 2
+    if args.workers > 1 and not get_settings().distributed:
+        print(
+            "bodyspace: error: --workers > 1 needs distributed mode (BODYSPACE_DATABASE_URL and "
+            "BODYSPACE_BROKER_URL): in embedded mode one API process owns the data folder and "
+            "runs its fits",
+            flush=True,
+        )
+        return 2
     uvicorn.run(
         "service.app:app",
         host=args.host,
         port=args.port,
         log_level=args.log_level,
         proxy_headers=True,
+        workers=args.workers if args.workers > 1 else None,
     )
     return 0
 
@@ -55,6 +69,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--log-level", default="info")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="API processes sharing the port (distributed mode only; default 1)",
+    )
     p.set_defaults(func=_serve)
 
     p = subparsers.add_parser("worker", help="run a Celery worker (distributed mode)")
