@@ -69,8 +69,9 @@ def _glb_encoder() -> Any:
 
 
 def body_glb(V: np.ndarray) -> bytes:
-    """GLB of a body in template order (the same bytes as ``write_glb(None, V, template F)``,
-    with the index buffer, normal accumulation and JSON chunk precomputed once)."""
+    """GLB of a body in template order: ``write_glb(None, V, template F)`` with the index
+    buffer, normal accumulation and JSON chunk precomputed once (normals summed in float32,
+    within 1e-5 of write_glb's; see :mod:`core.io.glb`)."""
     return _glb_encoder().encode(V)
 
 

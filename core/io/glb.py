@@ -4,9 +4,11 @@
 thousands of bodies with the same faces can precompute what does not change:
 :class:`FixedTopologyGlb` builds once the index buffer bytes, a sparse vertex <- face matrix that
 sums face normals into vertex normals, the buffer layout and the JSON chunk around the only
-per-body values (the POSITION ``min``/``max``). Its output is byte-for-byte what
-``write_glb(None, V, F)`` writes for the same ``V`` and ``F`` (same layout, same area-weighted
-normals summed in the same order), in about a tenth of the time.
+per-body values (the POSITION ``min``/``max``). Its output is what ``write_glb(None, V, F)``
+writes for the same ``V`` and ``F`` -- the same JSON chunk, positions and indices byte for byte
+-- except that the area-weighted vertex normals are summed in float32 from float64 edge vectors
+(they are stored as float32 anyway): within 1e-5 (0.0006°) of write_glb's float64 normals, unit
+length to float32 precision. About a fifth of write_glb's time per body.
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ import numpy as np
 from scipy import sparse
 
 from core.errors import InputFormatError
-from core.io._geometry import normalize
 
 _GLTF_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 _MIN, _MAX = "@@POSITION_MIN@@", "@@POSITION_MAX@@"
@@ -26,16 +27,6 @@ _MIN, _MAX = "@@POSITION_MIN@@", "@@POSITION_MAX@@"
 
 def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
     return b + fill * (-len(b) % 4)
-
-
-def _normalize(N: np.ndarray) -> np.ndarray:
-    """:func:`core.io._geometry.normalize` (same values: the same sum x² + y² + z² in the same
-    order, the same division), without its masking when every row has a length."""
-    x, y, z = N[:, 0], N[:, 1], N[:, 2]
-    L = np.sqrt(x * x + y * y + z * z)
-    if not (L > 1e-30).all() or not np.isfinite(L).all():
-        return normalize(N)
-    return N / L[:, None]
 
 
 class FixedTopologyGlb:
@@ -68,9 +59,10 @@ class FixedTopologyGlb:
         # vertex normal = sum of the area-weighted normals of its faces, in face order (the CSR
         # columns are sorted, so each row sums in the same order as write_glb's bincount)
         ones = np.ones(3 * m)
-        self._acc = sparse.csr_matrix((ones, (F.ravel(), np.repeat(np.arange(m), 3))), (n, m))
-        self._acc.sum_duplicates()
-        self._acc.sort_indices()
+        acc = sparse.csr_matrix((ones, (F.ravel(), np.repeat(np.arange(m), 3))), (n, m))
+        acc.sum_duplicates()
+        acc.sort_indices()
+        self._acc = acc.astype(np.float32)
         if n < 65535:
             idx, ctype = F.astype(np.uint16), 5123
         else:
@@ -120,16 +112,30 @@ class FixedTopologyGlb:
         self._bin_header = struct.pack("<II", self._bin_len, _BIN)
 
     def normals(self, V: np.ndarray) -> np.ndarray:
-        """(n, 3) float64 area-weighted unit vertex normals (``(0, 1, 0)`` where no area)."""
+        """(n, 3) float32 area-weighted unit vertex normals (``(0, 1, 0)`` where no area).
+
+        Edge vectors are taken in float64 (coordinates of ~1 m, edges of a few mm: float32
+        differences would lose 1e-3 of the direction), cross products and per-vertex sums in
+        float32 (half the memory traffic). Within 1e-5 (measured ≤ 3.1e-6 on 200 bodies) of
+        :func:`core.io._geometry.vertex_normals`.
+        """
         V = np.asarray(V, dtype=np.float64)
         a = V.take(self._f0, axis=0)  # take: several times faster than V[idx] here
-        b = V.take(self._f1, axis=0) - a
-        c = V.take(self._f2, axis=0) - a
+        b = (V.take(self._f1, axis=0) - a).astype(np.float32)
+        c = (V.take(self._f2, axis=0) - a).astype(np.float32)
         fn = np.empty_like(b)
         fn[:, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
         fn[:, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
         fn[:, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
-        return _normalize(self._acc @ fn)
+        N = self._acc @ fn
+        L = np.sqrt(np.einsum("ij,ij->i", N, N))
+        ok = L > 1e-30  # False for NaN too
+        if ok.all():
+            return N / L[:, None]
+        out = np.empty_like(N)
+        out[ok] = N[ok] / L[ok, None]
+        out[~ok] = (0.0, 1.0, 0.0)
+        return out
 
     def encode(self, V: np.ndarray) -> bytes:
         """The GLB of the mesh with vertices ``V`` ((n, 3), metres, +Y up) and normals.
@@ -147,7 +153,7 @@ class FixedTopologyGlb:
                 f"V has {int((~np.isfinite(V).all(1)).sum())} non-finite vertices; cannot write"
             )
         pos = V.astype(np.float32)
-        nrm = _normalize(self.normals(V).astype(np.float32).astype(np.float64)).astype(np.float32)
+        nrm = self.normals(V)
         # per column: a reduction over axis 0 of an (n, 3) array is ~10x slower
         lo = json.dumps([float(pos[:, i].min()) for i in range(3)], separators=(",", ":"))
         hi = json.dumps([float(pos[:, i].max()) for i in range(3)], separators=(",", ":"))
