@@ -111,28 +111,38 @@ class FixedTopologyGlb:
         self._js = (head.encode(), mid.encode(), tail.encode())
         self._bin_header = struct.pack("<II", self._bin_len, _BIN)
 
-    def normals(self, V: np.ndarray) -> np.ndarray:
+    def normals(self, V: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(n, 3) float32 area-weighted unit vertex normals (``(0, 1, 0)`` where no area).
 
         Edge vectors are taken in float64 (coordinates of ~1 m, edges of a few mm: float32
         differences would lose 1e-3 of the direction), cross products and per-vertex sums in
-        float32 (half the memory traffic). Within 1e-5 (measured ≤ 3.1e-6 on 200 bodies) of
-        :func:`core.io._geometry.vertex_normals`.
+        float32 (half the memory traffic), one coordinate at a time (contiguous arrays). Within
+        1e-5 (measured ≤ 3.1e-6 on 200 bodies) of :func:`core.io._geometry.vertex_normals`.
+
+        Parameters
+        ----------
+        V : (n, 3) vertices.
+        out : optional (n, 3) float32 array to write into (e.g. a view of the GLB buffer).
         """
         V = np.asarray(V, dtype=np.float64)
-        a = V.take(self._f0, axis=0)  # take: several times faster than V[idx] here
-        b = (V.take(self._f1, axis=0) - a).astype(np.float32)
-        c = (V.take(self._f2, axis=0) - a).astype(np.float32)
-        fn = np.empty_like(b)
-        fn[:, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
-        fn[:, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
-        fn[:, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
-        N = self._acc @ fn
-        L = np.sqrt(np.einsum("ij,ij->i", N, N))
+        if out is None:
+            out = np.empty((self.n_vertices, 3), np.float32)
+        f0, f1, f2 = self._f0, self._f1, self._f2
+        e1, e2 = [], []
+        for x in np.ascontiguousarray(V.T):  # x, y, z rows
+            x0 = x.take(f0)
+            e1.append((x.take(f1) - x0).astype(np.float32))
+            e2.append((x.take(f2) - x0).astype(np.float32))
+        (bx, by, bz), (cx, cy, cz) = e1, e2
+        nx = self._acc @ (by * cz - bz * cy)
+        ny = self._acc @ (bz * cx - bx * cz)
+        nz = self._acc @ (bx * cy - by * cx)
+        L = np.sqrt(nx * nx + ny * ny + nz * nz)
         ok = L > 1e-30  # False for NaN too
         if ok.all():
-            return N / L[:, None]
-        out = np.empty_like(N)
+            out[:, 0], out[:, 1], out[:, 2] = nx / L, ny / L, nz / L
+            return out
+        N = np.stack([nx, ny, nz], axis=1)
         out[ok] = N[ok] / L[ok, None]
         out[~ok] = (0.0, 1.0, 0.0)
         return out
@@ -146,28 +156,29 @@ class FixedTopologyGlb:
             ``V`` has the wrong shape or non-finite values.
         """
         V = np.asarray(V, dtype=np.float64)
-        if V.shape != (self.n_vertices, 3):
-            raise InputFormatError(f"V must have shape ({self.n_vertices}, 3), got {V.shape}")
+        n = self.n_vertices
+        if V.shape != (n, 3):
+            raise InputFormatError(f"V must have shape ({n}, 3), got {V.shape}")
         if not np.isfinite(V).all():
             raise InputFormatError(
                 f"V has {int((~np.isfinite(V).all(1)).sum())} non-finite vertices; cannot write"
             )
-        pos = V.astype(np.float32)
-        nrm = self.normals(V)
+        # float32 rounding is monotonic, so the float32 of the min is the min of the float32s;
         # per column: a reduction over axis 0 of an (n, 3) array is ~10x slower
-        lo = json.dumps([float(pos[:, i].min()) for i in range(3)], separators=(",", ":"))
-        hi = json.dumps([float(pos[:, i].max()) for i in range(3)], separators=(",", ":"))
+        cols = [V[:, i] for i in range(3)]
+        lo = json.dumps([float(np.float32(c.min())) for c in cols], separators=(",", ":"))
+        hi = json.dumps([float(np.float32(c.max())) for c in cols], separators=(",", ":"))
         head, mid, tail = self._js
         js = head + lo.encode() + mid + hi.encode() + tail
         js += b" " * (-len(js) % 4)
-        total = 12 + 8 + len(js) + 8 + self._bin_len
-        return b"".join(
-            (
-                struct.pack("<IIIII", _GLTF_MAGIC, 2, total, len(js), _JSON),
-                js,
-                self._bin_header,
-                pos.tobytes(),
-                nrm.tobytes(),
-                self._idx,
-            )
-        )
+        o = 28 + len(js)  # start of the binary chunk's data
+        total = o + self._bin_len
+        buf = bytearray(total)
+        struct.pack_into("<IIIII", buf, 0, _GLTF_MAGIC, 2, total, len(js), _JSON)
+        buf[20 : 20 + len(js)] = js
+        buf[o - 8 : o] = self._bin_header
+        # positions and normals are written straight into the buffer (no temporaries)
+        np.frombuffer(buf, np.float32, 3 * n, o).reshape(n, 3)[:] = V
+        self.normals(V, out=np.frombuffer(buf, np.float32, 3 * n, o + 12 * n).reshape(n, 3))
+        buf[o + 24 * n :] = self._idx
+        return bytes(buf)
