@@ -41,3 +41,15 @@ class FitError(BodyspaceError):
     """The registration cannot proceed with this input (e.g. markers far from the scan)."""
 
     code = "fit_failed"
+
+
+class NotABodyError(FitError):
+    """The scan cannot be a standing human body (size, proportions) in the frame it is read in."""
+
+    code = "not_a_body"
+
+
+class MeasurementError(BodyspaceError):
+    """Tape measurements that cannot be used: unknown names, non-numbers, wrong units."""
+
+    code = "invalid_measurements"
