@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from core.errors import FitError
+from core.matching.body_check import check_body_shape
 from core.registration.correspondence import ScanIndex
 from core.registration.fit import FitResult, Progress, fit, template_operators
 from core.registration.initialization import Similarity
@@ -145,7 +146,16 @@ def fit_markerless(
     Returns
     -------
     FitResult as for :func:`core.registration.fit.fit`; the report notes the chosen alignment.
+
+    Raises
+    ------
+    NotABodyError
+        The scan's size or proportions rule out a standing body (``core.matching.body_check``).
+    FitError
+        No alignment finds a body (``min_coverage``).
     """
+    frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
+    check_body_shape(scan.V, scan.F, frame=frame)
     index = ScanIndex(scan)
     sim, scores = choose_alignment(scan, index)
     best_cov = max(s["coverage"] for s in scores)

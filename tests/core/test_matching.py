@@ -80,14 +80,24 @@ def test_markerless_recovers_truth_in_any_facing(deg):
 
 
 def test_markerless_rejects_a_scan_that_is_not_a_body():
-    from core.errors import FitError
+    from core.errors import FitError, NotABodyError
     from core.io import detect_frame, prepare_scan
     from core.matching.markerless import fit_markerless
     from core.scan import RawMesh
 
     rng = np.random.default_rng(0)
     th, y = rng.uniform(0, 2 * np.pi, 20000), rng.uniform(0, 1.7, 20000)
-    P = np.c_[0.15 * np.cos(th), y, 0.15 * np.sin(th)]  # a pole as tall as a person
-    pole = prepare_scan(RawMesh(V=P), detect_frame(P, units="m", up="+y"))
-    with pytest.raises(FitError, match="not find a body"):
-        fit_markerless(pole)
+
+    def scan(r):
+        P = np.c_[r * np.cos(th), y, r * np.sin(th)]
+        return prepare_scan(RawMesh(V=P), detect_frame(P, units="m", up="+y"))
+
+    # a pole as tall as a person: refused by the cheap shape checks, before any fitting
+    with pytest.raises(NotABodyError, match="box or a column") as e:
+        fit_markerless(scan(0.15))
+    assert e.value.code == "not_a_body" and e.value.details["check"] == "profile"
+    # a vase as tall as a person narrows and widens like a body: only the fit finds no body
+    vase = 0.08 + 0.12 * np.abs(np.sin(2.5 * np.pi * y / 1.7))
+    with pytest.raises(FitError, match="not find a body") as e:
+        fit_markerless(scan(vase))
+    assert e.value.code == "fit_failed"
