@@ -436,9 +436,110 @@ def register_build_model(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_build_model)
 
 
+# --------------------------------------------------------------------------- `from-measurements`
+
+
+def read_measurements(path: Path | None, pairs: Sequence[str]) -> dict[str, Any]:
+    """Measurements from a JSON file ``{name: value}`` and/or ``NAME=VALUE`` pairs (these win)."""
+    values: dict[str, Any] = {}
+    if path is not None:
+        _check_in_path(path, "measurements file")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise CliError(f"measurements file {str(path)!r} is not valid JSON: {e}") from None
+        if not isinstance(data, dict):
+            raise CliError(
+                f"measurements file {str(path)!r} must hold one JSON object {{name: value}}"
+            )
+        values.update(data)
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        try:
+            values[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise CliError(
+                f"--measure {pair!r}: expected NAME=VALUE with a number, e.g. stature=1.65"
+            )
+    if not values:
+        raise CliError("give measurements: a JSON file {name: value} and/or --measure NAME=VALUE")
+    return values
+
+
+def _cmd_from_measurements(args: argparse.Namespace) -> int:
+    from core.io import write_mesh
+    from core.io.writers import atomic_write
+    from core.matching.from_measurements import body_from_measurements
+
+    values = read_measurements(
+        Path(args.measurements) if args.measurements else None, args.measure or []
+    )
+    out = _check_out_path(Path(args.out))
+    report_path = None
+    if args.report is not None:
+        report_path = _check_out_path(Path(args.report), (".json",), "--report")
+    res = body_from_measurements(args.sex, values, calibrate=not args.no_calibrate)
+    write_mesh(out, res.vertices, res.faces)
+    report = {**res.report.to_dict(), "bodyspace_version": _version(), "outputs": [str(out)]}
+    if report_path is not None:
+        text = json.dumps(json_ready(report), indent=2, allow_nan=False)
+        atomic_write(report_path, (text + "\n").encode("utf-8"))
+    if not args.quiet:
+        r = res.report
+        cal = "" if r.calibrated else ", not calibrated"
+        print(f"body ({args.sex}) from {len(r.given)} measurements in {r.seconds:.2f} s "
+              f"({r.iterations} refinement steps{cal})")  # fmt: skip
+        for name, m in r.matched.items():
+            unit = m["unit"]
+            f = (lambda v: f"{v:.1f} kg") if unit == "kg" else (lambda v: f"{v * 1000:.0f} mm")
+            print(
+                f"  {name:32s} given {f(m['given']):>9s}  body {f(m['given'] + m['residual']):>9s}"
+            )
+        for w in r.warnings:
+            print(f"  warning: {w}")
+        print("  wrote " + ", ".join([str(out)] + ([str(report_path)] if report_path else [])))
+    return 0
+
+
+def register_from_measurements(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "from-measurements",
+        help="the most likely body from a few tape measurements",
+        description="Make the most likely body of the default shape model with the given tape "
+        "measurements (ANSUR II names, metres; weightkg in kg), e.g. "
+        "'bodyspace from-measurements --sex female --measure stature=1.65 --measure "
+        "weightkg=62 --out body.glb'. Writes the body (template vertex order, metres, +Y up).",
+    )
+    p.add_argument(
+        "measurements", nargs="?", metavar="MEASUREMENTS.json",
+        help="JSON object {ANSUR name: value}, e.g. {\"stature\": 1.65, \"weightkg\": 62}",
+    )  # fmt: skip
+    p.add_argument(
+        "--measure", action="append", metavar="NAME=VALUE",
+        help="a measurement (repeat; overrides the file's value of the same name)",
+    )  # fmt: skip
+    p.add_argument("--sex", required=True, choices=("female", "male"))
+    p.add_argument("--out", required=True, metavar="BODY", help="the body: .ply, .obj or .glb")
+    p.add_argument("--report", metavar="REPORT.json", help="write the JSON report here")
+    p.add_argument(
+        "--no-calibrate", action="store_true",
+        help="the values follow bodyspace's measurement definitions (e.g. measured on a "
+        "bodyspace body), not an ANSUR-style tape: match them as they are",
+    )  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_from_measurements)
+
+
 # --------------------------------------------------------------------------- parser, main
 
-BUILTIN_COMMANDS: list[Registrar] = [register_fit, register_demo, register_build_model]
+BUILTIN_COMMANDS: list[Registrar] = [
+    register_fit,
+    register_demo,
+    register_build_model,
+    register_from_measurements,
+]
 
 
 def _plugin_registrars() -> list[Registrar]:

@@ -16,7 +16,15 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from core.errors import BodyspaceError, FitError, InputFormatError, MarkerError, UnitsError
+from core.errors import (
+    BodyspaceError,
+    FitError,
+    InputFormatError,
+    MarkerError,
+    MeasurementError,
+    NotABodyError,
+    UnitsError,
+)
 
 log = logging.getLogger("bodyspace.service")
 
@@ -26,6 +34,8 @@ CORE_ERRORS: dict[type[BodyspaceError], int] = {
     UnitsError: 422,
     MarkerError: 422,
     FitError: 422,
+    NotABodyError: 422,  # not_a_body: a markerless scan that cannot be a standing body
+    MeasurementError: 422,  # invalid_measurements: unknown names, non-numbers, wrong units
     BodyspaceError: 422,
 }
 

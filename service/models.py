@@ -25,7 +25,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 FIT_STATES = ("queued", "running", "succeeded", "failed")
-FIT_MODES = ("full", "markerless", "markers_only")
+FIT_MODES = ("full", "markerless", "markers_only", "measurements")
 
 
 def utcnow() -> datetime:

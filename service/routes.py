@@ -320,32 +320,41 @@ def create_fit(
     tenant: TenantId,
     session: SessionDep,
     runner: RunnerDep,
+    settings: SettingsDep,
+    store: StoreDep,
 ) -> FitOut:
     """Start a fit job: ``202`` with the job and its ``Location``; poll ``GET /v1/fits/{id}``.
 
     ``mode``: ``full`` (scan + markers, the default), ``markerless`` (scan only; markers are
-    ignored) or ``markers_only`` (markers only; ``scan_id`` optional). Inputs are validated before
-    the job is accepted (a markers-only request's markers: known names, at least 3, not
-    collinear, body-sized in the given units).
+    ignored), ``markers_only`` (markers only; ``scan_id`` optional) or ``measurements`` (``sex``
+    and tape ``measurements``; no scan). Inputs are validated before the job is accepted (a
+    markers-only request's markers: known names, at least 3, not collinear, body-sized in the
+    given units; a markerless scan: size and proportions of a standing body; measurements:
+    known names, plausible values).
     """
     scan = None
-    if body.scan_id is not None:
+    if body.scan_id is not None and body.mode != "measurements":
         scan = _own(session, Scan, body.scan_id, tenant, "scan")
-    elif body.mode != "markers_only":
+    elif body.mode not in ("markers_only", "measurements"):
         raise ApiError(
             "missing_field",
-            f"scan_id is required for mode {body.mode!r} (only 'markers_only' needs no scan)",
+            f"scan_id is required for mode {body.mode!r} (only 'markers_only' and "
+            "'measurements' need no scan)",
             field="scan_id",
         )
     options = _check_fit_options(body)
     markers = None
-    if body.markers is not None and body.mode != "markerless":  # markerless ignores markers
+    if body.markers is not None and body.mode in ("full", "markers_only"):  # markerless ignores
         markers = _read_inline_markers(body.markers)
     if body.mode == "full":
         if not (markers or scan.markers):
             raise ApiError("markers_required")
     elif body.mode == "markers_only":
         options.update(_check_markers_only(scan, markers, body))
+    elif body.mode == "markerless":
+        _check_markerless_scan(scan, settings, store)
+    else:  # measurements
+        options = _check_measurements(body, options)
     fit = Fit(
         id=new_id("fit"),
         tenant_id=tenant,
@@ -387,6 +396,22 @@ def _check_fit_options(body: FitCreate) -> dict[str, Any]:
         raise ApiError(
             "validation_error", "options.refine applies to mode 'markerless' only", field="refine"
         )
+    if opts.calibrate is not None and body.mode != "measurements":
+        raise ApiError(
+            "validation_error",
+            "options.calibrate applies to mode 'measurements' only",
+            field="calibrate",
+        )
+    for name in ("scan_id", "markers") if body.mode == "measurements" else ("sex", "measurements"):
+        if getattr(body, name) is not None:
+            raise ApiError(
+                "validation_error",
+                f"mode 'measurements' makes a body from sex and tape measurements alone: {name} "
+                "does not apply"
+                if body.mode == "measurements"
+                else f"{name} applies to mode 'measurements' only",
+                field=name,
+            )
     if body.mode != "markers_only" or body.scan_id is not None:
         for name in ("units", "up"):
             if getattr(body, name) is not None:
@@ -431,6 +456,52 @@ def _check_markers_only(
     return {"units": frame.units, "up": frame.up}
 
 
+def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> None:
+    """Refuse a scan whose size or proportions rule out a standing body (``not_a_body``) or
+    whose frame cannot be told without markers (``ambiguous_units``) before a markerless fit.
+
+    Cheap checks on the scan as the job will read it; files larger than
+    ``full_validation_max_bytes`` are left to the job (which runs the same checks first).
+    """
+    from core.io import detect_frame, read_mesh
+    from core.matching.body_check import check_body_shape
+
+    if scan.size_bytes > settings.full_validation_max_bytes:
+        return
+    with store.local_copy(scan.blob_key) as path:
+        raw = read_mesh(
+            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces
+        )
+    frame = detect_frame(raw.V, units=scan.units, up=scan.up)
+    how = {k: "as uploaded" if v != "auto" else "detected" for k, v in
+           (("units", scan.units), ("up", scan.up))}  # fmt: skip
+    check_body_shape(
+        frame.to_canonical(raw.V), raw.F,
+        frame=f"units {frame.units} ({how['units']}), up {frame.up} ({how['up']})",
+    )  # fmt: skip
+
+
+def _check_measurements(body: FitCreate, options: dict[str, Any]) -> dict[str, Any]:
+    """Validate a measurements request; returns the options to store (sex, measurements)."""
+    from core.matching.from_measurements import check_measurements
+    from core.shapespace import default_model
+
+    if body.sex is None:
+        raise ApiError(
+            "missing_field", "mode 'measurements' needs sex: 'female' or 'male'", field="sex"
+        )
+    if not body.measurements:
+        raise ApiError(
+            "missing_field",
+            "mode 'measurements' needs measurements: {ANSUR II name: value}, metres (weightkg "
+            "in kg), e.g. {'stature': 1.65, 'weightkg': 62}",
+            field="measurements",
+        )
+    values = check_measurements(body.sex, body.measurements, model=default_model())
+    out = {k: v for k, v in options.items() if k == "calibrate"}  # schedules concern scans
+    return {**out, "sex": body.sex, "measurements": values}
+
+
 @router.get("/fits", response_model=FitPage, tags=["fits"])
 def list_fits(
     tenant: TenantId,
@@ -439,7 +510,7 @@ def list_fits(
     cursor: str | None = None,
     scan_id: str | None = None,
     state: Literal["queued", "running", "succeeded", "failed"] | None = None,
-    mode: Literal["full", "markerless", "markers_only"] | None = None,
+    mode: Literal["full", "markerless", "markers_only", "measurements"] | None = None,
 ) -> FitPage:
     """The caller's fits (with or without a scan), newest first; filter by ``scan_id``,
     ``state`` and ``mode``."""

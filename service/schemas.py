@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 FitState = Literal["queued", "running", "succeeded", "failed"]
-FitMode = Literal["full", "markerless", "markers_only"]
+FitMode = Literal["full", "markerless", "markers_only", "measurements"]
 MarkerUnits = Literal["auto", "m", "cm", "mm"]
 MarkerUp = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 
@@ -62,6 +62,13 @@ class FitOptions(BaseModel):
         description="mode 'markerless' only: follow the shape-space fit with the per-vertex "
         "affine refinement of the schedule (default true); false returns the shape-space body",
     )
+    calibrate: bool | None = Field(
+        None,
+        description="mode 'measurements' only: the values are tape measurements as ANSUR II "
+        "takes them (default true; the body's own measurements plus the model's calibration "
+        "offsets are matched); false: they follow bodyspace's measurement definitions (e.g. "
+        "the measurements of a synthesised body) and are matched as they are",
+    )
 
 
 class FitCreate(BaseModel):
@@ -73,6 +80,8 @@ class FitCreate(BaseModel):
       must be given here, in metres +Y up unless ``units``/``up`` say otherwise; with
       ``scan_id`` the markers (given here, else the scan's uploaded marker file) are in the scan
       file's units and axes, and the scan's surface is not used.
+    - ``measurements``: the most likely body from tape measurements (``sex`` and
+      ``measurements``; no scan, no markers).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -80,10 +89,13 @@ class FitCreate(BaseModel):
     mode: FitMode = Field(
         "full",
         description="'full': scan + markers; 'markerless': scan without markers; "
-        "'markers_only': markers without a scan (scan_id optional)",
+        "'markers_only': markers without a scan (scan_id optional); 'measurements': "
+        "tape measurements (sex + measurements, no scan)",
     )
     scan_id: str | None = Field(
-        None, description="the scan to fit; required unless mode is 'markers_only'"
+        None,
+        description="the scan to fit; required for 'full' and 'markerless', optional for "
+        "'markers_only', refused for 'measurements'",
     )
     markers: dict[str, list[float]] | None = Field(
         None,
@@ -99,6 +111,16 @@ class FitCreate(BaseModel):
         None,
         description="mode 'markers_only' without a scan: the markers' up axis (default '+y'; "
         "'auto' detects it from head and foot landmarks)",
+    )
+    sex: Literal["female", "male"] | None = Field(
+        None, description="mode 'measurements' (required there): the body's sex"
+    )
+    measurements: dict[str, float] | None = Field(
+        None,
+        description="mode 'measurements' (required there): ANSUR II measurement name (as "
+        "listed by core.measure, e.g. 'stature', 'weightkg', 'waistcircumference') -> value "
+        "in metres (weightkg in kg)",
+        json_schema_extra={"examples": [{"stature": 1.65, "weightkg": 62.0}]},
     )
     options: FitOptions = Field(default_factory=FitOptions)
 

@@ -179,7 +179,7 @@ def _fit_options(options: dict[str, Any], mode: str = "full") -> dict[str, Any]:
     """Keyword options of the core function of ``mode`` from a job's stored options."""
     from core.registration.schedule import preset
 
-    if mode == "markers_only":  # schedules and distances concern the scan: none here
+    if mode in ("markers_only", "measurements"):  # schedules and distances concern scans
         return {}
     out: dict[str, Any] = dict(preset(options.get("schedule") or "default"))
     if options.get("shape_prior") is not None:
@@ -218,6 +218,12 @@ def _run_core(
 
     mode = row.mode or "full"
     opts = _fit_options(row.options or {}, mode)
+    if mode == "measurements":
+        from core.matching.from_measurements import body_from_measurements
+
+        o = row.options or {}
+        calibrate = o.get("calibrate", True)
+        return body_from_measurements(o["sex"], o["measurements"], calibrate=calibrate)
     if mode == "markers_only":
         if scan is None:
             markers, note = _markers_only_inputs(row)
