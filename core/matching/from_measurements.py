@@ -39,6 +39,7 @@ from __future__ import annotations
 import difflib
 import math
 import time
+import weakref
 from dataclasses import asdict, dataclass, field
 from functools import cache
 from typing import Any
@@ -313,7 +314,7 @@ def _check_combination(sex: str, values: dict[str, float]) -> None:
 # ----------------------------------------------------------------------------- calibration
 
 
-_CALIBRATION: dict[tuple[int, str], dict[str, float]] = {}
+_CALIBRATION: dict[tuple[int, str], tuple[weakref.ref, dict[str, float]]] = {}
 
 
 def calibration(model: ShapeModel, sex: str) -> dict[str, float]:
@@ -326,13 +327,16 @@ def calibration(model: ShapeModel, sex: str) -> dict[str, float]:
     (cached per model and sex).
     """
     key = (id(model), sex)
-    if key not in _CALIBRATION:
-        names, mu, _, _ = _ansur_stats(sex)
-        i_st, i_w = names.index("stature"), names.index("weightkg")
-        V = model.synthesize(sex, {"height_m": float(mu[i_st]), "weight_kg": float(mu[i_w])})
-        m = measure(V, names=names, density=model.space(sex).density)
-        _CALIBRATION[key] = {n: float(mu[i] - m[n]) for i, n in enumerate(names)}
-    return _CALIBRATION[key]
+    hit = _CALIBRATION.get(key)
+    if hit is not None and hit[0]() is model:
+        return hit[1]
+    names, mu, _, _ = _ansur_stats(sex)
+    i_st, i_w = names.index("stature"), names.index("weightkg")
+    V = model.synthesize(sex, {"height_m": float(mu[i_st]), "weight_kg": float(mu[i_w])})
+    m = measure(V, names=names, density=model.space(sex).density)
+    offsets = {n: float(mu[i] - m[n]) for i, n in enumerate(names)}
+    _CALIBRATION[key] = (weakref.ref(model), offsets)
+    return offsets
 
 
 # ----------------------------------------------------------------------------- fitting
