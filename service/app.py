@@ -22,6 +22,7 @@ from service.body_routes import router as bodies_router
 from service.db import migrate, ping, session_scope
 from service.jobs import make_runner
 from service.routes import router
+from service.runtime import tune_malloc
 from service.schemas import ErrorResponse, Health
 from service.settings import Settings, get_settings
 from service.shape_routes import router as models_router
@@ -50,6 +51,7 @@ def _startup(settings: Settings) -> None:
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
+    tune_malloc()  # service/runtime.py: no page faults per request for large buffers
     await run_in_threadpool(_startup, settings)
     app.state.store = make_store(settings)
     runner = make_runner(settings)
