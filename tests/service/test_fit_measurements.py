@@ -3,7 +3,7 @@ requests for scans that cannot be a body (refused before a job exists).
 
 Known truth: a body of the default model from known PCA weights, measured by ``core.measure``;
 the request gives 13 of its measurements with ``calibrate: false`` (bodyspace's definitions).
-Measured: 5.2 mm mean vertex error (bound 12 mm; seeds 0–5 give 4.5–9.7 mm, and 23.6 mm for
+Measured: 5.0 mm mean vertex error (bound 12 mm; seeds 0–5 give 3.8–9.8 mm, and 23.0 mm for
 seed 3, whose leading shape difference these 13 measurements do not see).
 """
 
