@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 from collections.abc import Callable
 from functools import cache
 from typing import Any
@@ -149,13 +150,16 @@ async def synthesize(
 
 
 _warm: set[str] = set()
+_warm_lock = threading.Lock()
 
 
 def _warm_up(model: str) -> None:
-    """Load ``model`` and the GLB encoder once per process (404 for an unknown model)."""
-    get_model(model)
-    _glb_encoder()
-    _warm.add(model)
+    """Load ``model`` and the GLB encoder once per process (404 for an unknown model); the
+    first burst of concurrent requests waits for one load instead of loading in every thread."""
+    with _warm_lock:
+        get_model(model)
+        _glb_encoder()
+        _warm.add(model)
 
 
 def _synthesize_json(model: str, body: SynthesizeRequest) -> Response:
