@@ -37,7 +37,7 @@ from core.shapespace import (
     load_model,
     read_bodies,
 )
-from core.shapespace.ansur import split
+from core.shapespace.ansur import rows_in_range, split
 from core.shapespace.model import DEFAULT_MODEL
 from core.template import load_template
 
@@ -54,16 +54,7 @@ def realism(model: ShapeModel, *, n: int | None = None) -> dict:
         names = [k for k in MEASUREMENTS if k in te]
         rng = te["held_out"].size
         idx = np.arange(rng) if n is None else np.arange(rng)[:n]
-        fm = model.space(sex).features
-        ok = []
-        for i in idx:
-            f = {"height_m": float(te["stature"][i]), "weight_kg": float(te["weightkg"][i])}
-            try:
-                fm.weights(f)
-                ok.append(i)
-            except ValueError:
-                pass
-        idx = np.array(ok)
+        idx = rows_in_range(model.space(sex).features, te, idx)
         t0 = time.perf_counter()
         rows, heights, raw_heights = [], [], []
         for i in idx:

@@ -552,6 +552,7 @@ def calibrate(
     Writes the calibrated model to ``out`` and returns a per-sex report."""
     from core.measure import MEASUREMENTS
     from core.shapespace import load_model
+    from core.shapespace.ansur import rows_in_range, stature_weight
     from core.shapespace.calibrate import calibrate_mean
 
     model = load_model(model_path)
@@ -563,19 +564,9 @@ def calibrate(
             continue
         d = split(sex, "train")
         names = [n for n in MEASUREMENTS if n in d]
-        fm = model.space(sex).features
-        ok = []
-        for i in range(len(d["stature"])):
-            f = {"height_m": float(d["stature"][i]), "weight_kg": float(d["weightkg"][i])}
-            try:
-                fm.weights(f)
-                ok.append(i)
-            except ValueError:
-                continue
+        ok = rows_in_range(model.space(sex).features, d)
         idx = np.sort(rng.choice(ok, size=min(rows, len(ok)), replace=False))
-        feats = [
-            {"height_m": float(d["stature"][i]), "weight_kg": float(d["weightkg"][i])} for i in idx
-        ]
+        feats = [stature_weight(d, int(i)) for i in idx]
         T = np.stack([d[n][idx] for n in names], 1)
         sigma = measure_scales(sex, names)
         for n in CALIBRATION_LOOSE:

@@ -74,6 +74,24 @@ def split(sex: str, part: str) -> dict[str, np.ndarray]:
     return {k: v[m] for k, v in d.items()}
 
 
+def stature_weight(d: dict[str, np.ndarray], i: int) -> dict[str, float]:
+    """Row ``i``'s ``{"height_m", "weight_kg"}`` features (metres, kg)."""
+    return {"height_m": float(d["stature"][i]), "weight_kg": float(d["weightkg"][i])}
+
+
+def rows_in_range(fmap, d: dict[str, np.ndarray], rows: np.ndarray | None = None) -> np.ndarray:
+    """Indices (of ``rows``, default all) whose stature and weight a feature map accepts
+    (``fmap.weights`` raises ``ValueError`` outside its supported ranges)."""
+    ok = []
+    for i in np.arange(len(d["stature"])) if rows is None else rows:
+        try:
+            fmap.weights(stature_weight(d, int(i)))
+        except ValueError:
+            continue
+        ok.append(int(i))
+    return np.array(ok, dtype=int)
+
+
 def measurement_columns() -> list[str]:
     """Names of the bundled ANSUR length columns (metres after loading)."""
     d = load_ansur("female")
