@@ -45,6 +45,7 @@ from service.shape_routes import (
     _features,
     _template_faces,
     _wants_json,
+    body_glb,
     get_model,
     synthesize_vertices,
 )
@@ -209,9 +210,7 @@ def _mesh_response(
             media_type="application/json",
             headers=headers,
         )
-    from core.io import write_glb
-
-    return Response(write_glb(None, V, F), status_code=status, media_type=GLB, headers=headers)
+    return Response(body_glb(V), status_code=status, media_type=GLB, headers=headers)
 
 
 # ----------------------------------------------------------------------------- routes
