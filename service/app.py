@@ -6,9 +6,11 @@ printed on the first start unless ``BODYSPACE_API_KEY`` gives it), and starts th
 
 from __future__ import annotations
 
+import fcntl
 import logging
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+import os
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
@@ -29,19 +31,38 @@ from service.shape_routes import router as models_router
 
 log = logging.getLogger("bodyspace.service")
 API_VERSION = "1.0.0"
+#: In ``DATA_DIR`` (embedded mode): serialises the start of API processes sharing the folder.
+STARTUP_LOCK = "startup.lock"
 
 
 def _operation_id(route: APIRoute) -> str:
     return route.name
 
 
+@contextmanager
+def _startup_lock(settings: Settings) -> Iterator[None]:
+    """Embedded mode: one API process at a time migrates the SQLite database and creates the
+    local key (``bodyspace serve --workers N`` starts N at once; a key is created and printed
+    once). PostgreSQL serialises migrations itself (advisory lock)."""
+    if not settings.resolved_database_url.startswith("sqlite"):
+        yield
+        return
+    fd = os.open(settings.data_dir / STARTUP_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def _startup(settings: Settings) -> None:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    migrate(settings)
-    with session_scope(settings) as s:
-        key = ensure_local_key(s, settings.api_key) if not settings.distributed else None
-        if settings.distributed and settings.api_key:
-            ensure_local_key(s, settings.api_key)
+    with _startup_lock(settings):
+        migrate(settings)
+        with session_scope(settings) as s:
+            key = ensure_local_key(s, settings.api_key) if not settings.distributed else None
+            if settings.distributed and settings.api_key:
+                ensure_local_key(s, settings.api_key)
     if key:
         msg = f"created the local API key (shown once; tenant 'local'): {key}"
         log.warning(msg)

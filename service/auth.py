@@ -147,7 +147,7 @@ def ensure_local_key(session: Session, configured: str | None) -> str | None:
     Returns a newly created key (to show once), else None.
     """
     if configured:
-        if session.get_bind().dialect.name == "sqlite":  # embedded: one API process
+        if session.get_bind().dialect.name == "sqlite":  # API processes start one at a time
             create_key(session, LOCAL_TENANT, configured)
             return None
         try:  # `serve --workers N`: the processes start at once and may race to register it

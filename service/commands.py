@@ -7,24 +7,20 @@ Registered by ``service/cli.py`` through :func:`register`. All read the same set
 from __future__ import annotations
 
 import argparse
+import signal
+import socket
+import sys
+import threading
 
 
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from service.settings import get_settings
-
     if args.workers < 1:
         print("bodyspace: error: --workers must be at least 1", flush=True)
         return 2
-    if args.workers > 1 and not get_settings().distributed:
-        print(
-            "bodyspace: error: --workers > 1 needs distributed mode (BODYSPACE_DATABASE_URL and "
-            "BODYSPACE_BROKER_URL): in embedded mode one API process owns the data folder and "
-            "runs its fits",
-            flush=True,
-        )
-        return 2
+    if args.workers > 1 and hasattr(socket, "SO_REUSEPORT"):
+        return _serve_processes(args)
     uvicorn.run(
         "service.app:app",
         host=args.host,
@@ -34,6 +30,102 @@ def _serve(args: argparse.Namespace) -> int:
         workers=args.workers if args.workers > 1 else None,
     )
     return 0
+
+
+#: Exit code of an API process whose start failed (uvicorn's ``STARTUP_FAILURE``).
+STARTUP_FAILURE = 3
+
+
+def _listen_socket(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` with ``SO_REUSEPORT``: each API process has its own
+    and the kernel spreads new connections over them (by hash), instead of whichever process
+    wakes first taking them from one shared socket (32 connections split 25/7 seen)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    try:
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    sock.set_inheritable(False)
+    return sock
+
+
+def _serve_one(host: str, port: int, log_level: str) -> None:
+    """One API process of ``serve --workers N`` (a spawned child): its own listening socket."""
+    import uvicorn
+
+    config = uvicorn.Config(
+        "service.app:app", host=host, port=port, log_level=log_level, proxy_headers=True
+    )
+    server = uvicorn.Server(config)
+    server.run(sockets=[_listen_socket(host, port)])
+    if not server.started:
+        sys.exit(STARTUP_FAILURE)
+
+
+def _serve_processes(args: argparse.Namespace) -> int:
+    """``serve --workers N``: N API processes, each listening on the port with ``SO_REUSEPORT``;
+    one that dies is started again; SIGTERM/SIGINT stop them all. In embedded mode they share
+    the data folder (SQLite in WAL mode, the blob folder) and one of them runs the fits
+    (:class:`service.jobs.EmbeddedRunner`)."""
+    import multiprocessing
+
+    try:  # fail now, with a message, if the port is taken by a socket without SO_REUSEPORT
+        _listen_socket(args.host, args.port).close()
+    except OSError as e:
+        print(f"bodyspace: error: cannot listen on {args.host}:{args.port}: {e}", flush=True)
+        return 2
+    ctx = multiprocessing.get_context("spawn")
+    stop = threading.Event()
+
+    def new() -> multiprocessing.process.BaseProcess:
+        p = ctx.Process(
+            target=_serve_one, args=(args.host, args.port, args.log_level), name="bodyspace-api"
+        )
+        p.start()
+        return p
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    procs = [new() for _ in range(args.workers)]
+    print(
+        f"bodyspace: {args.workers} API processes on http://{args.host}:{args.port} "
+        f"(pids {', '.join(str(p.pid) for p in procs)})",
+        flush=True,
+    )
+    code = 0
+    try:
+        while not stop.wait(0.5):
+            for i, p in enumerate(procs):
+                if p.is_alive():
+                    continue
+                if p.exitcode == STARTUP_FAILURE:
+                    print(f"bodyspace: error: API process {p.pid} failed to start", flush=True)
+                    stop.set()
+                    code = 1
+                    break
+                print(
+                    f"bodyspace: API process {p.pid} exited ({p.exitcode}): restarting it",
+                    flush=True,
+                )
+                procs[i] = new()
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=30)
+            if p.is_alive():
+                p.kill()
+                p.join()
+        for s, h in old.items():
+            signal.signal(s, h)
+    return code
 
 
 def _worker(args: argparse.Namespace) -> int:
@@ -73,7 +165,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         default=1,
-        help="API processes sharing the port (distributed mode only; default 1)",
+        help="API processes, each listening on the port (SO_REUSEPORT); in embedded mode they "
+        "share the data folder and one of them runs the fits (default 1)",
     )
     p.set_defaults(func=_serve)
 

@@ -9,9 +9,12 @@ Both take fit ids only; the job itself is :func:`worker.jobs.run_fit`.
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import multiprocessing
+import os
 import threading
+import time
 import uuid
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -20,6 +23,13 @@ from typing import Protocol
 from service.settings import Settings
 
 log = logging.getLogger("bodyspace.service")
+
+#: In ``DATA_DIR``: held (``flock``) by the one API process that runs the embedded fits.
+RUNNER_LOCK = "runner.lock"
+#: Seconds between the leader's looks for fits accepted by other API processes.
+POLL_INTERVAL_S = 0.5
+#: Seconds between the other processes' attempts to take the runner lock over.
+TAKEOVER_INTERVAL_S = 1.0
 
 
 class JobRunner(Protocol):
@@ -51,15 +61,32 @@ def _run(fit_id: str, task_id: str) -> str:
 
 
 class EmbeddedRunner:
-    """A local pool of spawned processes; a crashed pool is rebuilt and its jobs resubmitted."""
+    """A local pool of spawned processes; a crashed pool is rebuilt and its jobs resubmitted.
+
+    Several API processes may share one data folder (``bodyspace serve --workers N``): exactly
+    one of them -- the one holding an exclusive ``flock`` on ``DATA_DIR/runner.lock`` -- runs
+    the pool (the *leader*); the others only serve. A fit accepted by any process is a committed
+    ``queued`` row first: the leader hands it to its pool directly (its own requests) or within
+    :data:`POLL_INTERVAL_S` (the others'). The kernel drops the lock when its process dies,
+    however it dies; another process takes it over within :data:`TAKEOVER_INTERVAL_S` and
+    re-runs every unfinished job (nothing else can be running them: the lock says so).
+    """
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self._lock = threading.Lock()
         self._pool: ProcessPoolExecutor | None = None
         self._pending: dict[str, Future] = {}
+        self._polled: set[str] = set()
         self._generation = 0
         self._stop = threading.Event()
+        self._lock_fd: int | None = None
+        self._started = False
+
+    @property
+    def is_leader(self) -> bool:
+        """True in the process that runs fits (holds the runner lock)."""
+        return self._lock_fd is not None
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(
@@ -68,29 +95,91 @@ class EmbeddedRunner:
             initializer=_pool_init,
         )
 
+    def _try_lead(self) -> bool:
+        """Take the runner lock if no other live process holds it."""
+        path = self.settings.data_dir / RUNNER_LOCK
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return False
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._lock_fd = fd
+        return True
+
     def start(self) -> None:
+        self._started = True
+        if self._try_lead():
+            self._lead()
+        else:
+            log.info("fits run in another API process of this data folder (runner lock held)")
+        threading.Thread(target=self._loop, daemon=True, name="embedded-runner").start()
+
+    def _lead(self) -> None:
         from worker.jobs import recover
 
         with self._lock:
             self._pool = self._new_pool()
-        # Nothing else runs this database's jobs: everything unfinished is ours to run again.
+        log.info("this API process runs the fits of %s", self.settings.data_dir)
+        # Only the lock holder runs this database's jobs: everything unfinished is ours to run.
         recover(self.submit, self.settings, on_start=True, requeue_running=True)
-        threading.Thread(target=self._sweep, daemon=True, name="recovery-sweep").start()
 
-    def _sweep(self) -> None:
-        """Re-run jobs whose process died or that a transient fault left behind."""
+    def _loop(self) -> None:
+        """Leader: pick up fits accepted by other processes, and sweep now and then. Others:
+        take over when the leader's process is gone."""
         from worker.jobs import recover
 
-        while not self._stop.wait(self.settings.sweep_interval_s):
+        next_sweep = time.monotonic() + self.settings.sweep_interval_s
+        while not self._stop.is_set():
+            if not self.is_leader:
+                if self._stop.wait(TAKEOVER_INTERVAL_S):
+                    return
+                try:
+                    if self._try_lead():
+                        self._lead()
+                        next_sweep = time.monotonic() + self.settings.sweep_interval_s
+                except Exception as e:  # keep trying
+                    log.warning("taking over the fit runner failed: %s", e)
+                continue
+            if self._stop.wait(POLL_INTERVAL_S):
+                return
             try:
-                recover(self.submit, self.settings)
-            except Exception as e:  # keep sweeping
-                log.warning("recovery sweep failed: %s", e)
+                self._poll_queued()
+                if time.monotonic() >= next_sweep:
+                    next_sweep = time.monotonic() + self.settings.sweep_interval_s
+                    recover(self.submit, self.settings)  # re-run jobs whose process died
+            except Exception as e:  # keep polling
+                log.warning("job poll failed: %s", e)
+
+    def _poll_queued(self) -> None:
+        """Submit queued fits not yet handed to the pool (accepted by another API process).
+        Each is submitted once by the poll; retries are the sweep's (``recover``)."""
+        from sqlalchemy import select
+
+        from service.db import session_scope
+        from service.models import Fit
+
+        with session_scope(self.settings) as s:
+            queued = set(s.scalars(select(Fit.id).where(Fit.state == "queued")))
+        with self._lock:
+            new = queued - self._polled - set(self._pending)
+            self._polled = (self._polled & queued) | new
+        for fit_id in sorted(new):
+            self.submit(fit_id)
 
     def submit(self, fit_id: str) -> None:
         with self._lock:
+            if not self.is_leader:
+                if not self._started:
+                    raise RuntimeError("the embedded job runner is not started")
+                return  # the row is committed as queued: the leader's poll picks it up
             if self._pool is None:
                 raise RuntimeError("the embedded job runner is not started")
+            if fit_id in self._pending:
+                return  # already in the pool
             fut = self._pool.submit(_run, fit_id, f"emb.{uuid.uuid4().hex[:12]}")
             self._pending[fit_id] = fut
             gen = self._generation
@@ -99,7 +188,8 @@ class EmbeddedRunner:
     def _done(self, fit_id: str, fut: Future, generation: int) -> None:
         exc = fut.exception() if not fut.cancelled() else None
         with self._lock:
-            self._pending.pop(fit_id, None)
+            if self._pending.get(fit_id) is fut:
+                del self._pending[fit_id]
             rebuild = isinstance(exc, BrokenProcessPool) and generation == self._generation
             if rebuild:
                 self._generation += 1
@@ -116,10 +206,11 @@ class EmbeddedRunner:
             if self._pool is not None:
                 self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = self._new_pool()
+            self._pending.clear()
         recover(self.submit, self.settings, on_start=True, requeue_running=True)
 
     def check(self) -> None:
-        if self._pool is None:
+        if not self._started or (self.is_leader and self._pool is None):
             raise RuntimeError("the embedded job runner is not started")
 
     def shutdown(self) -> None:
@@ -131,6 +222,11 @@ class EmbeddedRunner:
             pool.shutdown(wait=False, cancel_futures=True)
             for p in procs:  # a running fit is recovered on the next start
                 p.terminate()
+            for p in procs:  # gone before the lock is released: no two runs of one job
+                p.join(timeout=10)
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
 
 class CeleryRunner:

@@ -1,4 +1,5 @@
-"""``bodyspace serve --workers N``: several API processes on one port (distributed mode only)."""
+"""``bodyspace serve --workers N`` in distributed mode: several API processes on one port (embedded
+mode: ``tests/service/test_embedded_workers.py``)."""
 
 from __future__ import annotations
 
@@ -21,16 +22,6 @@ PG_ADMIN = os.environ.get(
 REDIS_URL = os.environ.get("BODYSPACE_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
 KEY = "test-key-api-workers"
 SYN = "/v1/models/default/synthesize"
-
-
-def test_embedded_refuses_several_workers(tmp_path):
-    env = service_env({"BODYSPACE_DATA_DIR": str(tmp_path)})
-    out = subprocess.run(
-        [sys.executable, "-m", "service.commands", "serve", "--workers", "2", "--port", "1"],
-        env=env, capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
-    assert out.returncode == 2
-    assert "distributed mode" in out.stdout
 
 
 @pytest.fixture()
