@@ -7,6 +7,7 @@ printed on the first start unless ``BODYSPACE_API_KEY`` gives it), and starts th
 from __future__ import annotations
 
 import fcntl
+import gc
 import logging
 import os
 from collections.abc import AsyncIterator, Iterator
@@ -22,6 +23,7 @@ from service.auth import ensure_local_key
 from service.blobs import make_store
 from service.body_routes import router as bodies_router
 from service.db import migrate, ping, session_scope
+from service.fastpath import SynthesizeFastPath
 from service.jobs import make_runner
 from service.routes import router
 from service.runtime import tune_malloc
@@ -78,6 +80,11 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     runner = make_runner(settings)
     await run_in_threadpool(runner.start)
     app.state.runner = runner
+    # Everything imported and built so far lives as long as the process: keep it out of the
+    # collector's generations, so that a full collection later scans only what requests made
+    # (measured: 148 000 tracked objects, full collections of 30-70 ms stalling the loop).
+    gc.collect()
+    gc.freeze()
     mode = "distributed" if settings.distributed else "embedded"
     log.info("bodyspace API ready (%s mode)", mode)
     try:
@@ -97,6 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings or get_settings()
     errors.install(app)
+    app.add_middleware(SynthesizeFastPath)  # GLB synthesis without the routing machinery
     app.include_router(router)
     app.include_router(models_router)
     app.include_router(bodies_router)

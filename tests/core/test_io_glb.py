@@ -128,7 +128,19 @@ def test_bad_input(template, encoder):
     V[7, 1] = np.nan
     with pytest.raises(InputFormatError, match="non-finite"):
         encoder.encode(V)
+    for bad in (np.inf, -np.inf):  # caught through the bounds: either end
+        V = template.V.copy()
+        V[3, 2] = bad
+        with pytest.raises(InputFormatError, match="1 non-finite vertices"):
+            encoder.encode_buffer(V)
     with pytest.raises(ValueError, match="F must have shape"):
         FixedTopologyGlb(np.zeros((0, 3), int), 3)
     with pytest.raises(ValueError, match="indexes vertices"):
         FixedTopologyGlb(np.array([[0, 1, 3]]), 3)
+
+
+def test_encode_buffer_is_encode_without_the_copy(template, encoder):
+    V = _bodies(template, 2)[1]
+    buf = encoder.encode_buffer(V)
+    assert isinstance(buf, bytearray)
+    assert bytes(buf) == encoder.encode(V)
