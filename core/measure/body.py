@@ -14,6 +14,7 @@ from functools import cache
 import numpy as np
 
 from core.measure.definitions import MEASUREMENTS
+from core.measure.landmarks import landmark_point
 from core.measure.sections import (
     MeshTopology,
     Section,
@@ -101,7 +102,7 @@ class _Body:
 
     # ------------------------------------------------------------------ helpers
     def lm(self, name: str) -> np.ndarray:
-        return self.V[self.tpl.landmarks[name]]
+        return landmark_point(self.V, name, self.tpl.landmarks)
 
     def side_lm(self, stem: str) -> np.ndarray:
         return self.lm(f"{stem}_{self.s}")

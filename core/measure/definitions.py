@@ -49,7 +49,10 @@ MEASUREMENTS: dict[str, Measurement] = {
         "height", f"{H} the Omphalion landmark (centre of the navel).", "waistheightomphalion"
     ),
     "iliocristaleheight": _m(
-        "height", f"{H} the Iliocristale landmark (top of the iliac crest).", "iliocristaleheight"
+        "height",
+        f"{H} the Iliocristale landmark (top of the iliac crest; the measurement landmark of "
+        "core.measure.landmarks, 31 mm above the template's CAESAR vertex).",
+        "iliocristaleheight",
     ),
     "trochanterionheight": _m(
         "height", f"{H} the Trochanterion landmark (greater trochanter).", "trochanterionheight"
@@ -65,7 +68,8 @@ MEASUREMENTS: dict[str, Measurement] = {
     ),
     "lateralfemoralepicondyleheight": _m(
         "height",
-        f"{H} the lateral femoral epicondyle landmark.",
+        f"{H} the lateral femoral epicondyle landmark (the measurement landmark of "
+        "core.measure.landmarks, 31 mm above the template's CAESAR vertex).",
         "lateralfemoralepicondyleheight",
     ),
     "lateralmalleolusheight": _m(
