@@ -542,18 +542,23 @@ def calibrate(
     mu: float = 0.01,
     iterations: int = 4,
     k: int = 80,
+    laplacian: int = 120,
+    slopes: bool = True,
     seed: int = 0,
 ) -> dict:
     """Anthropometric calibration of the model's per-sex mean bodies
     (:func:`core.shapespace.calibrate.calibrate_mean`) on ``rows`` random held-in ANSUR rows per
-    sex, in the basis of the learned correction (:func:`correction_basis`), every measurement
+    sex, in the basis of the learned correction (:func:`correction_basis`) plus ``laplacian``
+    smooth symmetric fields (:func:`core.shapespace.calibrate.laplacian_basis`; 0: none), with
+    the feature map's height and weight slopes when ``slopes``, every measurement
     ``core.measure`` shares with ANSUR weighted by its regression residual SD
     (:func:`measure_scales`). The joint space's mean moves by the sexes' weighted mean shift.
     Writes the calibrated model to ``out`` and returns a per-sex report."""
     from core.measure import MEASUREMENTS
     from core.shapespace import load_model
     from core.shapespace.ansur import rows_in_range, stature_weight
-    from core.shapespace.calibrate import calibrate_mean
+    from core.shapespace.calibrate import calibrate_space, laplacian_basis
+    from core.template import load_template
 
     model = load_model(model_path)
     rng = np.random.default_rng(seed)
@@ -572,9 +577,14 @@ def calibrate(
         for n in CALIBRATION_LOOSE:
             sigma[names.index(n)] *= 3.0
         U, sd = correction_basis(model.space(sex).pca.mean.reshape(-1, 3), k)
+        if laplacian:
+            tpl = load_template()
+            UL, sdL = laplacian_basis(tpl.F, tpl.mirror, laplacian)
+            U, sd = np.concatenate([U, UL], 1), np.concatenate([sd, sdL])
         t0 = time.time()
-        cal = calibrate_mean(
+        cal = calibrate_space(
             model, sex, feats, T, names, sigma, U, sd, mu=mu, iterations=iterations,
+            slope_features=CALIBRATION_FEATURES if slopes else (),
             log=lambda s: print(s, flush=True),
         )  # fmt: skip
         shifts[sex] = (cal.delta, model.space(sex).n_bodies)
@@ -600,8 +610,10 @@ def calibrate(
         model.spaces["joint"].pca.mean = model.spaces["joint"].pca.mean + dj.ravel()
     model.metadata = dict(model.metadata)
     model.metadata["calibration"] = {
-        "method": "core.shapespace.calibrate.calibrate_mean", "rows_per_sex": rows, "mu": mu,
-        "iterations": iterations, "basis": f"{k} MakeHuman target PCs + shoulder drop",
+        "method": "core.shapespace.calibrate.calibrate_space", "rows_per_sex": rows, "mu": mu,
+        "iterations": iterations, "slopes": list(CALIBRATION_FEATURES) if slopes else [],
+        "basis": f"{k} MakeHuman target PCs + shoulder drop + {laplacian} Laplacian "
+        "eigenvectors (symmetric x/y/z fields)",
         "features": list(CALIBRATION_FEATURES), "seed": seed,
     }  # fmt: skip
     note = (
@@ -780,6 +792,17 @@ def main(argv: list[str] | None = None) -> int:
     ca.add_argument("--rows", type=int, default=200)
     ca.add_argument("--mu", type=float, default=0.01)
     ca.add_argument("--iterations", type=int, default=4)
+    ca.add_argument(
+        "--laplacian",
+        type=int,
+        default=120,
+        help="smooth symmetric Laplacian fields added to the basis (0: none)",
+    )
+    ca.add_argument(
+        "--no-slopes",
+        action="store_true",
+        help="calibrate the mean only (not the height/weight slopes)",
+    )
     bm = sub.add_parser("build", help="build a shape model from a fits folder")
     bm.add_argument("fits", type=Path)
     bm.add_argument("--out", type=Path, required=True)
@@ -788,7 +811,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "build":
         build(args.fits, args.out, variance=args.variance)
     if args.cmd == "calibrate":
-        calibrate(args.model, args.out, rows=args.rows, mu=args.mu, iterations=args.iterations)
+        calibrate(
+            args.model,
+            args.out,
+            rows=args.rows,
+            mu=args.mu,
+            iterations=args.iterations,
+            laplacian=args.laplacian,
+            slopes=not args.no_slopes,
+        )
     if args.cmd == "refine":
         refine(args.bodies, args.sex)
     if args.cmd == "fit":

@@ -172,6 +172,35 @@ class FeatureMap:
         f = self.mean[fi] + S_fw @ np.linalg.solve(S_ww, w - self.mean[wi])
         return {n: float(decode(n, v)) for n, v in zip(self.names, f, strict=True)}
 
+    def with_slopes(self, B: np.ndarray) -> FeatureMap:
+        """The feature map of training bodies whose PCA weights were ``w + B (f - mean f)``.
+
+        A linear change of variables of the joint Gaussian (``cov -> T cov T^T`` with
+        ``T = [[I, 0], [B, I]]``): the means, the residuals and the ranges stay; the map's
+        slopes gain ``B`` and the conditional means follow.
+
+        Parameters
+        ----------
+        B : (k, f) PCA weights (metres) per unit of each encoded feature.
+
+        Returns
+        -------
+        A new FeatureMap (this one is unchanged).
+        """
+        B = np.asarray(B, dtype=np.float64)
+        if B.shape != (self.k, self.f):
+            raise ValueError(f"slopes must be ({self.k}, {self.f}), got {B.shape}")
+        T = np.eye(self.f + self.k)
+        T[self.f :, : self.f] = B
+        M = self.M.copy()
+        M[: self.f] += B.T
+        M[self.f] -= self.mean[: self.f] @ B.T
+        return FeatureMap(
+            names=self.names, M=M, mean=self.mean.copy(), cov=T @ self.cov @ T.T,
+            ranges=dict(self.ranges),
+            residual_sd=None if self.residual_sd is None else self.residual_sd.copy(),
+        )  # fmt: skip
+
     def delta_weights(self, names: list[str], delta_encoded: np.ndarray) -> np.ndarray:
         """(k,) change of PCA weights for a change of encoded features (others held fixed):
         ``Δw = Δf @ M[rows of names]`` (the paper's editing step)."""
