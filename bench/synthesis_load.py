@@ -2,12 +2,14 @@
 
     .venv/bin/python -m bench.synthesis_load                     # embedded, 1 API process
     .venv/bin/python -m bench.synthesis_load --runs 3 --duration 20
-    .venv/bin/python -m bench.synthesis_load --api-processes 2   # distributed (PostgreSQL + Redis)
+    .venv/bin/python -m bench.synthesis_load --api-processes 2   # embedded, serve --workers 2
+    .venv/bin/python -m bench.synthesis_load --api-processes 2 --mode distributed  # PG + Redis
     .venv/bin/python -m bench.synthesis_load --client python     # force the Python fallback
 
-Starts a real ``bodyspace serve`` (embedded mode: temp data folder, key from
-``BODYSPACE_API_KEY``; or, with ``--api-processes N > 1``, distributed mode against the local
-PostgreSQL (a throwaway database) and Redis with ``bodyspace serve --workers N``), warms it, then
+Starts a real ``bodyspace serve --workers N`` (``--api-processes``, default 1) in embedded mode
+(temp data folder: SQLite, blob folder, the fit runner in one of the processes; key from
+``BODYSPACE_API_KEY``) or, with ``--mode distributed``, against the local PostgreSQL (a throwaway
+database) and Redis (no fit worker), warms it, then
 drives ``--connections`` (32) concurrent keep-alive connections for ``--duration`` seconds with
 varied requests: a pool of ``--pool`` (4096) distinct bodies drawn within the model's ranges
 (sex 50/50, stature uniform over the central 90 % of the sex's range, BMI ~ N(25.5/27, 4)
@@ -165,14 +167,17 @@ def _wait_ready(url: str, proc: Proc, timeout: float = 90.0) -> None:
     raise RuntimeError(f"server did not start in {timeout} s:\n{proc.output()}")
 
 
-def start(tmp: Path, api_processes: int) -> Server:
-    """``bodyspace serve``: embedded for one process, else distributed with ``--workers N``."""
+def start(tmp: Path, api_processes: int, mode: str = "embedded") -> Server:
+    """``bodyspace serve --workers N`` in ``mode`` (``embedded`` or ``distributed``)."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {"BODYSPACE_DATA_DIR": str(tmp / "data"), "BODYSPACE_API_KEY": KEY}
     args = ["-m", "service.commands", "serve", "--port", str(port), "--log-level", "warning"]
     cleanup = []
     if api_processes > 1:
+        args += ["--workers", str(api_processes)]
+    procs = f"{api_processes} API process{'es' if api_processes > 1 else ''}"
+    if mode == "distributed":
         import psycopg
 
         name = f"bodyspace_bench_{secrets.token_hex(4)}"
@@ -189,10 +194,9 @@ def start(tmp: Path, api_processes: int) -> Server:
             "BODYSPACE_BROKER_URL": REDIS_URL,
             "BODYSPACE_QUEUE_NAME": f"bench-{secrets.token_hex(4)}",
         }
-        args += ["--workers", str(api_processes)]
-        label = f"distributed, {api_processes} API processes (PostgreSQL + Redis, no fit worker)"
+        label = f"distributed, {procs} (PostgreSQL + Redis, no fit worker)"
     else:
-        label = "embedded, 1 API process (SQLite)"
+        label = f"embedded, {procs} (SQLite, fit runner in one)"
     import sys
 
     proc = Proc([sys.executable, *args], service_env(env), tmp / "server.log")
@@ -471,7 +475,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--rate", type=float, default=TARGET["rps"], help="paced phase req/s (0: skip)")
     ap.add_argument("--threads", type=int, default=1, help="wrk threads")
-    ap.add_argument("--api-processes", type=int, default=1, help=">1: distributed mode")
+    ap.add_argument("--api-processes", type=int, default=1, help="bodyspace serve --workers N")
+    ap.add_argument("--mode", choices=("embedded", "distributed"), default="embedded")
     ap.add_argument("--accept", choices=("glb", "json"), default="glb")
     ap.add_argument("--client", choices=("auto", "wrk", "python"), default="auto")
     ap.add_argument("--pool", type=int, default=4096, help="distinct request bodies")
@@ -507,7 +512,7 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="bodyspace-synth-load-") as d:
         tmp = Path(d)
-        srv = start(tmp, args.api_processes)
+        srv = start(tmp, args.api_processes, args.mode)
         try:
             print(f"server: bodyspace serve, {srv.label}, {srv.url}")
             # warm-up: every process loads the model, encoder, key cache (2 s of load)
