@@ -17,7 +17,8 @@ chosen so that bodies synthesised from the rows' features measure like those sub
 
     min  mean_i || (y_i - m(S(f_i))) / sigma ||^2 + mu || c / sd ||^2 + mu || beta / slope_sd ||^2
 
-(Gauss-Newton with the measurements' Jacobians at the body of the mean features; ``y_i`` the
+(Gauss-Newton, Levenberg-Marquardt damped, with the measurements' Jacobians at the body of the
+mean features; ``y_i`` the
 subject's measured values, ``m`` :func:`core.measure.measure`, ``S(f_i)`` the body synthesised
 from the row's features, ``sigma`` the residual SD of each measurement after a linear regression
 on stature and weight, ``sd`` the basis coefficients' prior SD, ``beta`` the slopes in SD units:
@@ -117,6 +118,24 @@ def laplacian_basis(
     Q, R = np.linalg.qr(np.stack(cols, 1))
     keep = np.abs(np.diag(R)) > 1e-3  # drop fields already spanned (degenerate eigenpairs)
     return Q[:, keep], np.array(sds)[keep]
+
+
+def symmetric_part(X: np.ndarray, mirror: np.ndarray) -> np.ndarray:
+    """Left-right symmetric part of a body or displacement field.
+
+    Parameters
+    ----------
+    X : (n, 3) (or (3n,)) vertices or displacements in template order, x = left-right.
+    mirror : (n,) index of each vertex's mirror vertex.
+
+    Returns
+    -------
+    ``(X + mirror(X)) / 2`` in the shape of ``X``, where
+    ``mirror(X)[i] = X[mirror[i]] * (-1, 1, 1)``.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    Y = X.reshape(-1, 3)
+    return (0.5 * (Y + Y[mirror] * np.array([-1.0, 1.0, 1.0]))).reshape(X.shape)
 
 
 def _measure_rows(
@@ -289,14 +308,14 @@ def calibrate_space(
             H[:q, q:] = np.kron(JU.T @ JWs, S1[None, :])
             H[q:, :q] = H[:q, q:].T
             b[q:] = np.einsum("ir,rj,im->jm", R, JWs, Gs).reshape(-1) / len(G)
-        dtheta = np.linalg.solve(H + np.diag(prior), b - prior * theta)
-        for _ in range(4):  # backtrack when the linearisation overshoots
+        A = H + np.diag(prior)
+        for lam in (0.0, 0.1, 1.0, 10.0):  # Levenberg-Marquardt: damp when a step overshoots
+            dtheta = np.linalg.solve(A + lam * np.diag(np.diag(A)), b - prior * theta)
             apply(theta + dtheta)
             M_try = measure_all()
             f_try = objective(M_try, theta + dtheta)
             if f_try < f_now:
                 break
-            dtheta *= 0.5
         else:
             apply(theta)
             break
