@@ -428,10 +428,19 @@ def correction_basis(Vref: np.ndarray, k: int = 80) -> tuple[np.ndarray, np.ndar
     """Displacement basis of the learned correction: the top ``k`` principal directions of all
     426 MakeHuman targets (``core.registration.shape_prior``) plus a shoulder-drop field.
 
-    Returns U (3n, k + 1) (per unit coefficient, metres) and the prior SD of each coefficient.
+    Only the left-right symmetric part of each direction is kept (directions with less than
+    10 % of their norm symmetric are dropped): 11 of the top 80 MakeHuman directions are
+    one-sided (``l-``/``r-`` targets), and with measurements taken on the right side the
+    correction used them to lengthen one arm and, through the floor's kink, to lift one foot
+    (up to 52 mm in a refined body; 23 mm in the mean of the model built from them).
+
+    Returns U (3n, q) (per unit coefficient, metres; q <= k + 1) and the prior SD of each
+    coefficient.
     """
     from core.registration.shape_prior import load_shape_basis
     from core.rig import axis_angle, pose_body
+    from core.shapespace.calibrate import symmetric_part
+    from core.template import load_template
 
     B = load_shape_basis(k)
     th = np.radians(SHOULDER_DROP_DEG)
@@ -440,10 +449,14 @@ def correction_basis(Vref: np.ndarray, k: int = 80) -> tuple[np.ndarray, np.ndar
     d = (P - Vref).ravel()
     U = np.concatenate([B.U.reshape(-1, B.k), (d / np.linalg.norm(d))[:, None]], axis=1)
     sd = np.append(B.sigma, np.linalg.norm(d) * 3.0)  # up to ~12 degrees
-    return U, sd
+    mirror = load_template().mirror
+    U = np.stack([symmetric_part(U[:, j], mirror) for j in range(U.shape[1])], 1)
+    norms = np.linalg.norm(U, axis=0)
+    keep = norms > 0.1
+    return U[:, keep] / norms[keep], sd[keep] * norms[keep]
 
 
-REFINE_VERSION = "/v2"
+REFINE_VERSION = "/v3"  # v3: symmetric correction basis
 
 
 def _unrefined(f: Path) -> np.ndarray:
@@ -473,7 +486,7 @@ def refine(bodies: Path, sex: str, *, mu: float = 0.3, iterations: int = 3, k: i
     for n in SECONDARY:
         if n in names:
             sigma[names.index(n)] *= 3.0
-    jpath = bodies / f"refine_{sex}.npz"
+    jpath = bodies / f"refine_{sex}{REFINE_VERSION.replace('/', '_')}.npz"
     if jpath.exists():
         with np.load(jpath) as z:
             U, sd, J = z["U"], z["sd"], z["J"]
