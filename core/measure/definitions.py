@@ -173,7 +173,11 @@ MEASUREMENTS: dict[str, Measurement] = {
     "chestbreadth": _m(
         "breadth",
         """Horizontal breadth of the trunk at nipple level: extent of the chest section
-        (arms excluded) along the body's left-right axis.""",
+        (arms excluded) along the body's left-right axis. This is the skin surface's breadth,
+        which the latissimus behind the arms sets; ANSUR II's beam caliper reads the rib cage
+        under the arms and is narrower: on bodies of the default shape model this reads
+        ~25 mm (women) / ~58 mm (men) more than ANSUR's column (bench.shapespace), while the
+        chest circumference and depth agree with ANSUR's.""",
         "chestbreadth",
     ),
     "chestdepth": _m(
