@@ -57,7 +57,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from service.testing import ROOT, Proc, free_port, service_env
+from service.testing import ROOT, Proc, free_port, service_env, wait_ready
 
 KEY = "bench-synthesis-key-" + "0" * 16
 PATH = "/v1/models/default/synthesize"
@@ -152,21 +152,6 @@ class Server:
             fn()
 
 
-def _wait_ready(url: str, proc: Proc, timeout: float = 90.0) -> None:
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if not proc.alive():
-            raise RuntimeError(f"server exited:\n{proc.output()}")
-        try:
-            if httpx.get(url + "/readyz", timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    proc.stop()
-    raise RuntimeError(f"server did not start in {timeout} s:\n{proc.output()}")
-
-
 def start(tmp: Path, api_processes: int, mode: str = "embedded") -> Server:
     """``bodyspace serve --workers N`` in ``mode`` (``embedded`` or ``distributed``)."""
     port = free_port()
@@ -201,7 +186,7 @@ def start(tmp: Path, api_processes: int, mode: str = "embedded") -> Server:
 
     proc = Proc([sys.executable, *args], service_env(env), tmp / "server.log")
     try:
-        _wait_ready(url, proc)
+        wait_ready(proc, url, path="/readyz", timeout=90, poll=0.2)
     except BaseException:
         for fn in cleanup:
             fn()

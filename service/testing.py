@@ -80,24 +80,33 @@ class Proc:
         return self.log.read_text(errors="replace")
 
 
-def start_server(env: Mapping[str, str], port: int, log: Path, timeout: float = 60.0) -> Proc:
-    """``bodyspace serve`` on ``port``; waits until ``/healthz`` answers."""
+def wait_ready(
+    proc: Proc, url: str, *, path: str = "/healthz", timeout: float = 60.0, poll: float = 0.1
+) -> None:
+    """Wait until ``url + path`` answers 200; stop ``proc`` and raise RuntimeError (with its
+    output) when it exits first or ``timeout`` seconds pass."""
     import httpx
 
-    args = [sys.executable, "-m", "service.commands", "serve", "--port", str(port)]
-    proc = Proc([*args, "--log-level", "warning"], env, log)
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
         if not proc.alive():
             raise RuntimeError(f"server exited:\n{proc.output()}")
         try:
-            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
-                return proc
+            if httpx.get(url + path, timeout=2).status_code == 200:
+                return
         except httpx.TransportError:
             pass
-        time.sleep(0.1)
+        time.sleep(poll)
     proc.stop()
     raise RuntimeError(f"server did not start in {timeout} s:\n{proc.output()}")
+
+
+def start_server(env: Mapping[str, str], port: int, log: Path, timeout: float = 60.0) -> Proc:
+    """``bodyspace serve`` on ``port``; waits until ``/healthz`` answers."""
+    args = [sys.executable, "-m", "service.commands", "serve", "--port", str(port)]
+    proc = Proc([*args, "--log-level", "warning"], env, log)
+    wait_ready(proc, f"http://127.0.0.1:{port}", timeout=timeout)
+    return proc
 
 
 def start_worker(env: Mapping[str, str], log: Path, name: str, concurrency: int = 1) -> Proc:

@@ -7,14 +7,13 @@ import os
 import secrets
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import httpx
 import psycopg
 import pytest
 
-from service.testing import Proc, free_port, service_env
+from service.testing import Proc, free_port, service_env, wait_ready
 
 PG_ADMIN = os.environ.get(
     "BODYSPACE_TEST_POSTGRES_URL", "postgresql://postgres@127.0.0.1:5432/postgres"
@@ -52,16 +51,7 @@ def test_two_api_processes_serve_synthesis(tmp_path: Path, fresh_db: str, redis_
     proc = Proc([sys.executable, *args], env, tmp_path / "api.log")
     url = f"http://127.0.0.1:{port}"
     try:
-        t_end = time.monotonic() + 90
-        while True:
-            assert proc.alive(), proc.output()
-            assert time.monotonic() < t_end, f"not ready:\n{proc.output()}"
-            try:
-                if httpx.get(url + "/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
+        wait_ready(proc, url, path="/readyz", timeout=90, poll=0.2)
         children = subprocess.run(
             ["ps", "--ppid", str(proc.pid), "-o", "pid="], capture_output=True, text=True
         ).stdout.split()

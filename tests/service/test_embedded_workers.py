@@ -26,6 +26,7 @@ from service.testing import (
     sim_files,
     start_server,
     upload_scan,
+    wait_ready,
     wait_state,
 )
 
@@ -156,16 +157,7 @@ def test_serve_workers_2_embedded(tmp_path):
     proc = Proc([sys.executable, *args, "--log-level", "warning"], env, tmp_path / "api.log")
     url = f"http://127.0.0.1:{port}"
     try:
-        t_end = time.monotonic() + 90
-        while True:
-            assert proc.alive(), proc.output()
-            assert time.monotonic() < t_end, f"not ready:\n{proc.output()}"
-            try:
-                if httpx.get(url + "/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
+        wait_ready(proc, url, path="/readyz", timeout=90, poll=0.2)
         time.sleep(1.0)  # both processes started
         out = proc.output()
         keys = [line.split()[-1] for line in out.splitlines() if "bodyspace: created" in line]
