@@ -14,9 +14,14 @@ with the numbers that show why, not after seconds of fitting. The checks need on
 - **Profile**: a body is much narrower somewhere (neck, ankles) than at its widest (shoulders,
   hips, hands): across horizontal slabs from 5 % to 95 % of the height, the narrowest must be
   at most :data:`MAX_PROFILE_RATIO` × the widest (a box or a cylinder is ≈ 1).
+- **Not round**: somewhere a body is much wider than deep (the two legs side by side, the
+  shoulders, the arms): the largest slab aspect (extent along the slab's principal horizontal
+  direction over the perpendicular one) must be at least :data:`MIN_SLAB_ASPECT` (a vase or a
+  column, round at every height, is ≈ 1.0; measured bodies 5–6, arms down and BMI ~50
+  included).
 
-Bounds are loose on purpose: subtler cases (a scan that passes but holds no body) fail at fit
-time (``fit_markerless``'s coverage check, ``FitError``).
+Bounds are loose on purpose, and these checks are the only refusal of a markerless fit: a body
+that the fit matches poorly is a result with warnings, not an error.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ MIN_WIDTH, MAX_WIDTH = 0.12, 1.3
 MIN_DEPTH = 0.03
 #: Narrowest over widest horizontal slab, max.
 MAX_PROFILE_RATIO = 0.75
+#: Largest slab width over depth, min.
+MIN_SLAB_ASPECT = 1.4
 N_SLABS = 18
 MAX_POINTS = 60_000
 
@@ -73,7 +80,8 @@ def body_shape(V: np.ndarray, F: np.ndarray | None = None) -> dict[str, Any]:
     -------
     dict with ``height_m``, ``width_m``, ``depth_m`` (robust extents: 0.1–99.9 percentiles;
     width/depth along the principal horizontal directions), ``profile_ratio`` (narrowest over
-    widest slab width, NaN if fewer than 3 slabs hold points) and ``n_points``.
+    widest slab width, NaN if fewer than 3 slabs hold points), ``slab_aspect`` (largest width
+    over depth of a slab in its own principal directions, NaN likewise) and ``n_points``.
     """
     V = np.asarray(V, dtype=np.float64)
     finite = np.isfinite(V).all(axis=1)
@@ -92,7 +100,7 @@ def body_shape(V: np.ndarray, F: np.ndarray | None = None) -> dict[str, Any]:
     _, vecs = np.linalg.eigh(H.T @ H)
     ab = H @ vecs[:, ::-1]  # columns: widest direction, then the perpendicular one
     e = np.percentile(ab, 99.9, axis=0) - np.percentile(ab, 0.1, axis=0)
-    widths = []
+    widths, aspects = [], []
     if h > 0:
         edges = lo + h * np.linspace(0.05, 0.95, N_SLABS + 1)
         which = np.searchsorted(edges, P[:, 1]) - 1
@@ -102,12 +110,18 @@ def body_shape(V: np.ndarray, F: np.ndarray | None = None) -> dict[str, Any]:
             if len(q) >= min_n:
                 ext = np.percentile(q, 99, axis=0) - np.percentile(q, 1, axis=0)
                 widths.append(float(ext.max()))
+                qc = q - q.mean(axis=0)
+                _, sv = np.linalg.eigh(qc.T @ qc)
+                own = np.percentile(qc @ sv, 99, axis=0) - np.percentile(qc @ sv, 1, axis=0)
+                aspects.append(float(own.max() / max(own.min(), 1e-9)))
     ratio = float(min(widths) / max(widths)) if len(widths) >= 3 and max(widths) > 0 else np.nan
+    aspect = float(max(aspects)) if len(aspects) >= 3 else np.nan
     return {
         "height_m": h,
         "width_m": float(e[0]),
         "depth_m": float(e[1]),
         "profile_ratio": ratio,
+        "slab_aspect": aspect,
         "n_points": len(V),
     }
 
@@ -161,5 +175,13 @@ def check_body_shape(
             f"{100 * r:.0f} % of the widest): a body narrows at the neck and the ankles, this "
             "looks like a box or a column",
             check="profile", **s,
+        )  # fmt: skip
+    a = s["slab_aspect"]
+    if np.isfinite(a) and a < MIN_SLAB_ASPECT:
+        raise NotABodyError(
+            f"the scan is {size} and round at every height (no slab more than {a:.2f}× as wide "
+            "as deep): a body is much wider than deep somewhere (legs side by side, shoulders); "
+            "this looks like a column or a vase",
+            check="roundness", **s,
         )  # fmt: skip
     return s

@@ -135,7 +135,7 @@ def fit_markerless(
     refine : follow the shape-space fit by the per-vertex affine refinement.
     schedule : the refinement schedule (default :meth:`Schedule.refine`); ignored without refine.
     min_coverage : if even the best start matches less than this share of the template within
-        1.5 cm, the scan is not a body we can fit: ``FitError``.
+        1.5 cm, the result carries a warning (the fit may be wrong); it is still returned.
     soft_marker_rounds : with ``refine``, refit the body prior this many times, each round with
         the landmarks the previous result predicts as markers (each restart brings pose and
         shape closer); the last round runs the refinement schedule (markers weak, γ = 0.1).
@@ -150,22 +150,15 @@ def fit_markerless(
     Raises
     ------
     NotABodyError
-        The scan's size or proportions rule out a standing body (``core.matching.body_check``).
-    FitError
-        No alignment finds a body (``min_coverage``).
+        The scan's size or proportions rule out a standing body (``core.matching.body_check``):
+        the only refusal; a body matched poorly is a result with warnings.
     """
     frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
     check_body_shape(scan.V, scan.F, frame=frame)
     index = ScanIndex(scan)
     sim, scores = choose_alignment(scan, index)
     best_cov = max(s["coverage"] for s in scores)
-    if not np.isfinite(best_cov) or best_cov < min_coverage:
-        raise FitError(
-            "could not find a body in this scan: at best "
-            f"{best_cov * 100:.0f} % of the template lies within 1.5 cm of it "
-            "(is it a whole standing body?)",
-            coverage=best_cov,
-        )
+    low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     if soft_marker_rounds < 0:
         raise ValueError(f"soft_marker_rounds must be ≥ 0, got {soft_marker_rounds}")
     rounds = soft_marker_rounds if refine else 0
@@ -204,6 +197,12 @@ def fit_markerless(
         f"markerless: best of {len(scores)} starting alignments "
         f"({best_cov * 100:.0f} % of the template within 1.5 cm)"
     )
+    if low_coverage:
+        res.report.warnings.append(
+            f"the starting alignment matched only {best_cov * 100:.0f} % of the template within "
+            "1.5 cm of the scan: the body may be misplaced or misposed; check the fit (scan→fit "
+            f"{res.report.scan_to_fit_mean_m * 1000:.1f} mm mean)"
+        )
     return res
 
 
