@@ -154,8 +154,9 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
         raise ApiError("validation_error", f"up must be one of {UPS}", field="up")
     fmt = SCAN_EXT.get(Path(scan.filename).suffix.lower())
     head = inspect_mesh_header(
-        scan.path, fmt, max_vertices=settings.max_vertices, max_faces=settings.max_faces
-    )
+        scan.path, fmt, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
+        name=scan.filename,
+    )  # fmt: skip
     markers = pts = None
     mfile = form.files.get("markers")
     if mfile is not None:
@@ -165,7 +166,7 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
     if scan.size <= settings.full_validation_max_bytes:
         raw = read_mesh(
             scan.path, head["format"], max_vertices=settings.max_vertices,
-            max_faces=settings.max_faces,
+            max_faces=settings.max_faces, name=scan.filename,
         )  # fmt: skip
         detect_frame(raw.V, units=units, up=up, markers=pts)
     return {"head": head, "units": units, "up": up, "markers": markers}
@@ -470,8 +471,9 @@ def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> 
         return
     with store.local_copy(scan.blob_key) as path:
         raw = read_mesh(
-            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces
-        )
+            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
+            name=scan.filename,
+        )  # fmt: skip
     frame = detect_frame(raw.V, units=scan.units, up=scan.up)
     how = {k: "as uploaded" if v != "auto" else "detected" for k, v in
            (("units", scan.units), ("up", scan.up))}  # fmt: skip

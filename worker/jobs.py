@@ -160,8 +160,9 @@ def _load_inputs(
 
     with store.local_copy(scan.blob_key) as path:
         raw = read_mesh(
-            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces
-        )
+            path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
+            name=scan.filename,
+        )  # fmt: skip
     markers_file = fit.markers if fit.markers is not None else scan.markers
     if not use_markers:
         markers_file = None

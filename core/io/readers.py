@@ -14,6 +14,12 @@ Decisions
   dropped.
 - **Limits** (``max_vertices``, ``max_faces``) are checked from the header (PLY, binary STL, NPZ)
   before the data are parsed, and from line counts for text formats.
+- **NPZ** inflates nothing unchecked: only the scan's arrays (``vertices``, ``faces``,
+  ``normals``, ``confidence``, ``colors`` and their aliases) are allowed, each member's ``.npy``
+  header (shape x dtype) is checked against the limits and against the member's declared size
+  before any data are read, and exactly that many bytes are inflated; any other member is refused.
+- **Names**: ``name=`` says what messages call the file (an upload's filename, never a server
+  path).
 """
 
 from __future__ import annotations
@@ -756,65 +762,138 @@ _NPZ_KEYS = {
     "confidence": ("confidence",),
     "colors": ("colors",),
 }
+_NPZ_NAMES = tuple(k for keys in _NPZ_KEYS.values() for k in keys)
 
 
-def _npz_shapes(data: bytes, what: str) -> dict[str, tuple[int, ...]]:
-    """Array shapes in an NPZ without loading the arrays."""
-    shapes = {}
-    try:
-        with zipfile.ZipFile(io.BytesIO(data)) as z:
-            for name in z.namelist():
-                if not name.endswith(".npy"):
-                    continue
-                with z.open(name) as f:
-                    ver = np.lib.format.read_magic(f)
-                    if ver == (1, 0):
-                        shape, _, _ = np.lib.format.read_array_header_1_0(f)
-                    else:
-                        shape, _, _ = np.lib.format.read_array_header_2_0(f)
-                shapes[name[:-4]] = shape
-    except Exception as e:  # zipfile/npy headers raise many types on corrupt input
-        raise InputFormatError(f"{what}: not a valid NPZ archive ({e})") from None
-    return shapes
+class _NpyMember:
+    """One ``.npy`` member of an NPZ: its header, read without inflating the data."""
+
+    __slots__ = ("dtype", "fortran", "info", "offset", "shape")
+
+    def __init__(self, info: zipfile.ZipInfo, shape, fortran: bool, dtype, offset: int):
+        self.info, self.shape, self.fortran, self.dtype, self.offset = (
+            info, tuple(int(s) for s in shape), fortran, dtype, offset
+        )  # fmt: skip
+
+    @property
+    def nbytes(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
 
 
-def _npz_pick(shapes: dict, field: str) -> str | None:
-    return next((k for k in _NPZ_KEYS[field] if k in shapes), None)
+def _npz_members(
+    z: zipfile.ZipFile, what: str, max_vertices: int | None, max_faces: int | None
+) -> dict[str, _NpyMember]:
+    """Headers of an NPZ's arrays, checked before any data are inflated.
 
-
-def _read_npz(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
-    shapes = _npz_shapes(data, what)
-    kv = _npz_pick(shapes, "V")
+    Only the arrays a scan can use (``_NPZ_NAMES``) are allowed; each must be a plain numeric
+    array whose shape fits the limits, and the member's declared size must match its header
+    (so reading it can inflate at most that many bytes).
+    """
+    out: dict[str, _NpyMember] = {}
+    for info in z.infolist():
+        if info.is_dir():
+            continue
+        key = info.filename[:-4] if info.filename.endswith(".npy") else None
+        if key not in _NPZ_NAMES:
+            raise InputFormatError(
+                f"{what}: NPZ member {info.filename[:80]!r} is not a scan array; an NPZ scan may "
+                f"hold only {', '.join(k + '.npy' for k in _NPZ_NAMES)}",
+                member=info.filename[:80],
+            )
+        with z.open(info) as f:
+            ver = np.lib.format.read_magic(f)
+            if ver == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+            elif ver == (2, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+            else:
+                raise InputFormatError(
+                    f"{what}: NPZ member '{info.filename}' uses .npy format {ver}; "
+                    "save it with numpy's default format (1.0 or 2.0)"
+                )
+            offset = f.tell()
+        m = _NpyMember(info, shape, fortran, dtype, offset)
+        if dtype.kind not in "biuf" or dtype.itemsize > 8 or dtype.hasobject:
+            raise InputFormatError(
+                f"{what}: NPZ array '{key}' must be numeric (bool, int or float up to 64 bits), "
+                f"got {dtype}"
+            )
+        if info.file_size != offset + m.nbytes:
+            raise InputFormatError(
+                f"{what}: NPZ member '{info.filename}' is {info.file_size:,} bytes uncompressed "
+                f"but its header describes {offset + m.nbytes:,}; the archive is corrupt"
+            )
+        out[key] = m
+    kv = _npz_pick(out, "V")
     if kv is None:
         raise InputFormatError(
             f"{what}: NPZ has no vertex array; store it under 'vertices' (or 'V'); "
-            f"found keys {sorted(shapes)}"
+            f"found keys {sorted(out)}"
         )
-    kf = _npz_pick(shapes, "F")
-    nv = shapes[kv][0] if shapes[kv] else 0
-    nf = shapes[kf][0] if kf and shapes[kf] else 0
+    for keys in _NPZ_KEYS.values():
+        if sum(k in out for k in keys) > 1:
+            raise InputFormatError(f"{what}: NPZ holds more than one of {keys}; keep one")
+    nv = out[kv].shape[0] if out[kv].shape else 0
+    kf = _npz_pick(out, "F")
+    nf = out[kf].shape[0] if kf and out[kf].shape else 0
     _check_limits(nv, nf, max_vertices, max_faces, what)
-    try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            arr = {k: z[k] for k in z.files}
-    except Exception as e:  # corrupt archive members
-        raise InputFormatError(f"{what}: cannot load the NPZ arrays ({e})") from None
+    for field, want in (("V", (nv, 3)), ("normals", (nv, 3)), ("confidence", (nv,)),
+                        ("colors", (nv, 3)), ("F", (nf, 3))):  # fmt: skip
+        k = _npz_pick(out, field)
+        if k is not None and out[k].shape != want:
+            raise InputFormatError(
+                f"{what}: NPZ array '{k}' must have shape "
+                f"{'(n, 3)' if field == 'V' else '(m, 3)' if field == 'F' else want}, "
+                f"got {out[k].shape}"
+            )
+    return out
 
-    def get(field: str, cols: int | None, dtype) -> np.ndarray | None:
+
+def _npz_array(z: zipfile.ZipFile, m: _NpyMember, what: str) -> np.ndarray:
+    """Inflate exactly one member's ``m.nbytes`` data bytes (never more)."""
+    buf = bytearray(m.nbytes)
+    view = memoryview(buf)
+    with z.open(m.info) as f:
+        f.seek(m.offset)
+        got = 0
+        while got < m.nbytes:
+            chunk = f.read(min(m.nbytes - got, 1 << 22))
+            if not chunk:
+                raise InputFormatError(f"{what}: NPZ member '{m.info.filename}' is truncated")
+            view[got : got + len(chunk)] = chunk
+            got += len(chunk)
+    a = np.frombuffer(buf, m.dtype)
+    return a.reshape(m.shape, order="F" if m.fortran else "C")
+
+
+def _npz_open(data: bytes, what: str) -> zipfile.ZipFile:
+    try:
+        return zipfile.ZipFile(io.BytesIO(data))
+    except Exception as e:  # zipfile raises many types on corrupt input
+        raise InputFormatError(f"{what}: not a valid NPZ archive ({type(e).__name__})") from None
+
+
+def _npz_pick(arrays: dict, field: str) -> str | None:
+    return next((k for k in _NPZ_KEYS[field] if k in arrays), None)
+
+
+def _read_npz(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
+    with _npz_open(data, what) as z:
+        try:
+            members = _npz_members(z, what, max_vertices, max_faces)
+            arr = {k: _npz_array(z, m, what) for k, m in members.items()}
+        except InputFormatError:
+            raise
+        except Exception as e:  # corrupt headers or members
+            raise InputFormatError(
+                f"{what}: cannot load the NPZ arrays ({type(e).__name__}: {str(e)[:200]})"
+            ) from None
+
+    def get(field: str, dtype) -> np.ndarray | None:
         k = _npz_pick(arr, field)
         if k is None:
             return None
-        a = np.asarray(arr[k])
-        if a.dtype.kind not in "biuf":
-            raise InputFormatError(f"{what}: NPZ array '{k}' must be numeric, got {a.dtype}")
-        want = (nv, cols) if cols else (nv,)
-        if field == "F":
-            if a.ndim != 2 or a.shape[1] != 3:
-                raise InputFormatError(
-                    f"{what}: NPZ array '{k}' must have shape (m, 3), got {a.shape}"
-                )
-        elif a.shape != want:
-            raise InputFormatError(f"{what}: NPZ array '{k}' must have shape {want}, got {a.shape}")
+        a = arr[k]
         if (
             field == "F"
             and a.dtype.kind == "f"
@@ -825,18 +904,12 @@ def _read_npz(data: bytes, what: str, max_vertices: int | None, max_faces: int |
             a = np.clip(np.round(a * 255.0), 0, 255)
         return a.astype(dtype)
 
-    k = _npz_pick(arr, "V")
-    V = np.asarray(arr[k])
-    if V.ndim != 2 or V.shape[1] != 3 or V.dtype.kind not in "biuf":
-        raise InputFormatError(
-            f"{what}: NPZ array '{k}' must be numeric with shape (n, 3), got {V.shape} {V.dtype}"
-        )
     raw = RawMesh(
-        V=V.astype(np.float64),
-        F=get("F", 3, np.int64),
-        normals=get("normals", 3, np.float64),
-        confidence=get("confidence", None, np.float64),
-        colors=get("colors", 3, np.uint8),
+        V=get("V", np.float64),
+        F=get("F", np.int64),
+        normals=get("normals", np.float64),
+        confidence=get("confidence", np.float64),
+        colors=get("colors", np.uint8),
     )
     if raw.F is not None and len(raw.F) == 0:
         raw.F = None
@@ -980,6 +1053,7 @@ def read_mesh(
     *,
     max_vertices: int = 5_000_000,
     max_faces: int = 10_000_000,
+    name: str | None = None,
 ) -> RawMesh:
     """Read a scan mesh or point cloud in the file's units and axes.
 
@@ -991,6 +1065,8 @@ def read_mesh(
         Format; by default from the extension, else from the content.
     max_vertices, max_faces : int
         Limits checked before the data are parsed (faces after fan triangulation may be more).
+    name : str, optional
+        What error messages call the file (e.g. an upload's filename); default its path.
 
     Returns
     -------
@@ -1005,7 +1081,7 @@ def read_mesh(
         coordinates, confidence outside [0, 1], counts above the limits.
     """
     head, size = _read_prefix(source)
-    what = _name(source)
+    what = _name(source) if name is None else name
     if size == 0:
         raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
     f = _detect_format(source, head, size, fmt)
@@ -1032,6 +1108,7 @@ def inspect_mesh_header(
     *,
     max_vertices: int | None = None,
     max_faces: int | None = None,
+    name: str | None = None,
 ) -> dict[str, Any]:
     """Validate a scan's header cheaply, e.g. before a web service accepts an upload.
 
@@ -1052,7 +1129,7 @@ def inspect_mesh_header(
         Empty, unknown or malformed files, truncated binary PLY/STL, counts above the limits.
     """
     head, size = _read_prefix(path_or_bytes)
-    what = _name(path_or_bytes)
+    what = _name(path_or_bytes) if name is None else name
     if size == 0:
         raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
     f = _detect_format(path_or_bytes, head, size, fmt)
@@ -1103,10 +1180,17 @@ def inspect_mesh_header(
             format="stl", n_vertices=3 * nf, n_faces=nf, has_normals=False, has_confidence=False
         )
     elif f == "npz":
-        shapes = _npz_shapes(_read_all(path_or_bytes), what)
+        with _npz_open(_read_all(path_or_bytes), what) as z:
+            try:
+                members = _npz_members(z, what, max_vertices, max_faces)
+            except InputFormatError:
+                raise
+            except Exception as e:  # corrupt npy headers
+                raise InputFormatError(
+                    f"{what}: not a valid NPZ archive ({type(e).__name__})"
+                ) from None
+        shapes = {k: m.shape for k, m in members.items()}
         kv, kf = _npz_pick(shapes, "V"), _npz_pick(shapes, "F")
-        if kv is None:
-            raise InputFormatError(f"{what}: NPZ has no 'vertices' (or 'V') array")
         out = dict(
             format="npz",
             n_vertices=int(shapes[kv][0]) if shapes[kv] else 0,

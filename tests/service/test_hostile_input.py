@@ -1,0 +1,92 @@
+"""Hostile input (issue 11): each finding reproduced against the real server, bounded CPU/memory."""
+
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+GIB = 1 << 30
+
+
+def _vm(pid: int, field: str) -> int:
+    """A /proc/PID/status memory figure (VmHWM, VmRSS) in bytes."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    raise KeyError(field)
+
+
+@pytest.fixture(scope="module")
+def npz_bomb(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A valid ``vertices.npy`` plus a 1 GiB zero-filled ``extra.npy`` (~1 MB zipped, streamed)."""
+    path = tmp_path_factory.mktemp("bomb") / "bomb.npz"
+    V = np.random.default_rng(0).normal(size=(1000, 3))
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as z:
+        b = io.BytesIO()
+        np.save(b, V)
+        z.writestr("vertices.npy", b.getvalue())
+        chunk = bytes(1 << 20)
+        with z.open("extra.npy", "w", force_zip64=True) as f:
+            for _ in range(GIB >> 20):
+                f.write(chunk)
+    assert path.stat().st_size < 2_000_000
+    return path
+
+
+def test_npz_bomb_refused_by_the_reader_without_inflating(npz_bomb):
+    code = (
+        "import sys, time\n"
+        "from core.io import read_mesh, inspect_mesh_header\n"
+        "from core.errors import InputFormatError\n"
+        "t = time.process_time()\n"
+        "for fn in (inspect_mesh_header, read_mesh):\n"
+        "    try:\n"
+        "        fn(sys.argv[1]); print('accepted'); sys.exit(1)\n"
+        "    except InputFormatError as e:\n"
+        "        assert 'extra.npy' in str(e), e\n"
+        "hwm = [ln for ln in open('/proc/self/status') if ln.startswith('VmHWM:')][0]\n"
+        "print(time.process_time() - t, hwm.split()[1])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(npz_bomb)], capture_output=True,
+                         text=True, check=True)  # fmt: skip
+    cpu_s, maxrss_kib = out.stdout.split()
+    assert float(cpu_s) < 0.5
+    assert int(maxrss_kib) * 1024 < 300e6  # peak RSS (VmHWM); the interpreter with numpy is ~70 MB
+
+
+def test_npz_member_larger_than_its_header_refused(tmp_path):
+    """A scan array whose zip entry holds more bytes than its .npy header describes."""
+    from core.errors import InputFormatError
+    from core.io import read_mesh
+
+    b = io.BytesIO()
+    np.save(b, np.zeros((10, 3)))
+    path = tmp_path / "pad.npz"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("vertices.npy", b.getvalue() + bytes(50_000_000))
+    t = time.process_time()
+    with pytest.raises(InputFormatError, match="header describes"):
+        read_mesh(path)
+    assert time.process_time() - t < 0.1
+
+
+def test_npz_bomb_upload_refused_with_bounded_rss(client, server, npz_bomb):
+    pid = server["proc"].pid
+    before = max(_vm(pid, "VmHWM"), _vm(pid, "VmRSS") + 150_000_000)
+    t = time.process_time()
+    files = {"scan": ("bomb.npz", npz_bomb.read_bytes(), "application/octet-stream")}
+    r = client.post("/v1/scans", files=files)
+    assert r.status_code == 422, r.text
+    err = r.json()["error"]
+    assert err["code"] == "invalid_file", err
+    assert "extra.npy" in err["message"]
+    assert "bomb.npz" in err["message"] and str(server["data"]) not in err["message"]
+    assert time.process_time() - t < 5
+    assert _vm(pid, "VmHWM") <= before
