@@ -256,7 +256,7 @@ def summary_lines(result: Any, info: dict) -> list[str]:
     if dropped:
         m += " (" + ", ".join(dropped[:8]) + (", ..." if len(dropped) > 8 else "") + ")"
     lines.append(m)
-    lines.extend(f"  warning: {w}" for w in r.warnings)
+    lines.extend(f"  warning: {w}" for w in r.warnings if not w.startswith("quality:"))
     lines.append("  wrote " + ", ".join(info.get("outputs", [])))
     return lines
 
@@ -294,7 +294,23 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         info["outputs"].append(str(report_path))
     if not args.quiet:
         print("\n".join(summary_lines(result, info)))
-    return 0
+    return quality_exit(result)
+
+
+EXIT_QUALITY_FAILED = 3
+
+
+def quality_exit(result: Any) -> int:
+    """Print the fit's quality verdict (one line on stderr); the exit code it means.
+
+    ``failed`` (a body part lost, collapsed or misplaced) exits with 3 — the fitted body and the
+    report are still written, for inspection; ``good`` and ``suspect`` exit with 0.
+    """
+    q = result.report.quality
+    if q is None:
+        return 0
+    print(f"{PROG}: {q.summary()}", file=sys.stderr)
+    return EXIT_QUALITY_FAILED if q.quality == "failed" else 0
 
 
 def register_fit(subparsers: argparse._SubParsersAction) -> None:

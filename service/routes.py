@@ -129,6 +129,7 @@ def _fit_out(f: Fit) -> FitOut:
         error=f.error,  # type: ignore[arg-type]
         attempts=f.attempts,
         result_formats=list(RESULT_FORMATS) if f.state == "succeeded" else [],
+        quality=(f.report or {}).get("quality") if f.state == "succeeded" else None,
     )
 
 

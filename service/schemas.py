@@ -146,6 +146,33 @@ class Timings(BaseModel):
     fit_s: float | None = Field(None, description="time inside the core's fit")
 
 
+class PartQualityOut(BaseModel):
+    """Figures of one body part (metres; coverage a fraction); ``null`` where not measurable."""
+
+    quality: Literal["good", "suspect", "failed"]
+    scan_points: int
+    scan_to_fit_mean_m: float | None = None
+    scan_to_fit_p95_m: float | None = None
+    fit_to_scan_mean_m: float | None = None
+    fit_to_scan_p95_m: float | None = None
+    coverage: float | None = None
+    displacement_m: float | None = None
+
+
+class FitQualityOut(BaseModel):
+    """The fit's quality verdict (``core.registration.quality``): ``good``; ``suspect`` (worth a
+    look); ``failed`` (a body part is lost, collapsed or misplaced: do not use the body as it
+    is). The job still ends ``succeeded`` so the result can be inspected."""
+
+    quality: Literal["good", "suspect", "failed"]
+    reasons: list[str] = Field(default_factory=list, description="each names the body part")
+    parts: dict[str, PartQualityOut] = Field(
+        default_factory=dict,
+        description="head, torso, arm_L/R, hand_L/R, leg_L/R, foot_L/R (_L = subject's left)",
+    )
+    thresholds: dict[str, dict[str, float]] = Field(default_factory=dict)
+
+
 class FitOut(BaseModel):
     id: str
     mode: FitMode = "full"
@@ -157,6 +184,9 @@ class FitOut(BaseModel):
     error: ErrorInfo | None = None
     attempts: int
     result_formats: list[str] = Field(default_factory=list)
+    quality: FitQualityOut | None = Field(
+        None, description="a succeeded fit's quality verdict (none for fits without a scan)"
+    )
 
 
 class ScanPage(BaseModel):

@@ -30,6 +30,7 @@ from core.registration.operators import (
     unique_edges,
     vertex_normals,
 )
+from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
@@ -91,6 +92,7 @@ class FitReport:
     scan_faces: int = 0
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    quality: FitQuality | None = None  # per-part check and verdict (core.registration.quality)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
@@ -438,11 +440,14 @@ def iter_fit(
     # affines in metres: x_world = A_s (u (v - cb)) / u + c_scan
     A_m = A.copy()
     A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], cb)
-    # scan→fit distance on a fixed subsample of at most 20k scan points (report only)
-    sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), 20_000)).astype(np.int64)
+    # scan→fit distance on a fixed subsample of scan points, shared with the per-part check
+    sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), SAMPLE_POINTS)).astype(np.int64)
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
     report.scan_to_fit_mean_m = float(np.mean(d))
     report.scan_to_fit_p95_m = float(np.percentile(d, 95))
+    report.quality = assess_fit(index, X, template=tpl, scan_to_fit=d, sample_ids=sample)
+    if report.quality.quality != "good":
+        report.warnings.append(report.quality.summary())
     report.no_data_fraction = float(np.mean(~compatible_full))
     report.template_region_fraction = float(np.mean(~ops.full.data_mask))
     report.seconds = time.perf_counter() - t_start

@@ -70,6 +70,14 @@ def test_end_to_end_fit_glb_validates_and_is_close_to_truth(client, sim, tmp_pat
         assert r.status_code == 200 and r.headers["content-type"].startswith(ctype)
     rep = client.get(f"/v1/fits/{fit['id']}/result", params={"format": "json"}).json()
     assert rep["scan_to_fit_mean_m"] < 0.01 and rep["markers_used"]
+    # the quality verdict: in the status and in the result JSON, every part measured
+    q = done["quality"]
+    assert q == rep["quality"]
+    assert q["quality"] == "good", q["reasons"]
+    assert set(q["parts"]) == {
+        "head", "torso", "arm_L", "arm_R", "hand_L", "hand_R", "leg_L", "leg_R", "foot_L", "foot_R"
+    }  # fmt: skip
+    assert q["parts"]["head"]["scan_points"] > 0
 
 
 def test_fit_that_raises_fails_with_message_and_pool_keeps_serving(client, sim):

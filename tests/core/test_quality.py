@@ -1,0 +1,130 @@
+"""The per-part quality check: a good fit reads good; a fit with a part moved, rotated or collapsed
+does not, and the reasons name the part (thresholds: ``core.registration.quality``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bench.cases import make_case
+from core.registration.fit import fit
+from core.registration.quality import PARTS, THRESHOLDS, assess_fit, part_labels
+from core.registration.schedule import Schedule
+from core.serialize import json_ready
+from core.template import load_template
+from service.cli import EXIT_QUALITY_FAILED, quality_exit
+
+
+@pytest.fixture(scope="module")
+def case():
+    return make_case(101, small=True)
+
+
+@pytest.fixture(scope="module")
+def fitted(case):
+    return fit(case.scan, case.markers, schedule=Schedule.fast())
+
+
+def _mask(part: str) -> np.ndarray:
+    labels, names = part_labels()
+    return labels == names.index(part)
+
+
+def _neck_joint(X: np.ndarray) -> np.ndarray:
+    """Centre of the head/neck boundary of body X (the point a head collapses towards)."""
+    tpl = load_template()
+    head, neck = tpl.part_mask("head"), tpl.part_mask("neck")
+    E = tpl.edges
+    b = (head[E[:, 0]] & neck[E[:, 1]]) | (neck[E[:, 0]] & head[E[:, 1]])
+    return X[np.unique(E[b])].mean(axis=0)
+
+
+def test_labels_cover_the_template_with_ten_parts():
+    labels, names = part_labels()
+    assert names == tuple(PARTS) and len(names) == 10
+    assert labels.min() == 0 and labels.max() == 9
+    # left and right are mirror images of each other
+    tpl = load_template()
+    left = _mask("arm_L")
+    assert np.array_equal(np.sort(tpl.mirror[left]), np.flatnonzero(_mask("arm_R")))
+
+
+def test_good_fit_and_truth_read_good(case, fitted):
+    q = fitted.report.quality
+    assert q is not None and q.quality == "good", q.reasons
+    t = assess_fit(case.scan, case.truth)
+    assert t.quality == "good", t.reasons
+    for name, p in q.parts.items():
+        assert p.scan_points >= 30, name
+        assert p.scan_to_fit_p95_m < THRESHOLDS["scan_to_fit_p95_m"].suspect, name
+    # the report carries it, strict-JSON ready
+    rep = json.loads(json.dumps(json_ready(fitted.report.to_dict()), allow_nan=False))
+    assert rep["quality"]["quality"] == "good"
+    assert set(rep["quality"]["parts"]) == set(PARTS)
+
+
+@pytest.mark.parametrize("offset_m", [0.04, 0.10, 0.15])
+def test_head_moved_forward_fails_naming_the_head(case, fitted, offset_m):
+    X = fitted.vertices.copy()
+    X[_mask("head")] += [0.0, 0.0, offset_m]
+    q = assess_fit(case.scan, X)
+    assert q.quality == "failed"
+    assert q.parts["head"].quality == "failed"
+    assert any(r.startswith("head:") for r in q.reasons)
+
+
+@pytest.mark.parametrize("scale", [0.6, 0.3])
+def test_head_collapsed_into_the_neck_fails(case, fitted, scale):
+    X = fitted.vertices.copy()
+    head = load_template().part_mask("head")
+    c = _neck_joint(X)
+    X[head] = c + (X[head] - c) * scale
+    q = assess_fit(case.scan, X)
+    assert q.quality == "failed", q.reasons
+    assert q.parts["head"].quality == "failed"
+    assert q.parts["head"].coverage < THRESHOLDS["coverage"].failed
+    assert q.parts["torso"].quality == "good"
+
+
+@pytest.mark.parametrize("deg", [10.0, 25.0])
+def test_arm_swung_out_of_its_data_is_not_good(case, fitted, deg):
+    X = fitted.vertices.copy()
+    arm = _mask("arm_L") | _mask("hand_L")
+    top = X[load_template().part_mask("upper_arm_L")]
+    shoulder = top[np.argmax(top[:, 1])]
+    R = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    X[arm] = (X[arm] - shoulder) @ R.T + shoulder
+    q = assess_fit(case.scan, X)
+    assert q.quality == "failed"
+    assert q.parts["arm_L"].quality == "failed" and q.parts["arm_R"].quality == "good"
+    assert any(r.startswith("arm_L:") for r in q.reasons)
+
+
+def test_lifted_foot_is_not_good(case, fitted):
+    X = fitted.vertices.copy()
+    X[_mask("foot_R")] += [0.0, 0.03, 0.0]
+    q = assess_fit(case.scan, X)
+    assert q.quality in ("suspect", "failed")
+    assert q.parts["foot_R"].quality != "good" and q.parts["foot_L"].quality == "good"
+
+
+def test_failed_quality_exits_3_and_says_why(case, fitted, capsys):
+    assert quality_exit(fitted) == 0
+    assert "quality: good" in capsys.readouterr().err
+    X = fitted.vertices.copy()
+    X[_mask("head")] += [0.0, 0.0, 0.12]
+    fitted.report.quality, good = assess_fit(case.scan, X), fitted.report.quality
+    try:
+        assert quality_exit(fitted) == EXIT_QUALITY_FAILED == 3
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("bodyspace: quality: failed (head:") and "\n" not in err
+    finally:
+        fitted.report.quality = good
+
+
+def test_rejects_a_body_of_the_wrong_shape(case):
+    with pytest.raises(ValueError, match="13380"):
+        assess_fit(case.scan, np.zeros((10, 3)))
