@@ -33,11 +33,13 @@ from service.schemas import (
     BodyEdit,
     BodyMeasurements,
     BodyMesh,
+    BodyMorph,
     BodyOut,
     BodyPage,
     BodySource,
     ErrorResponse,
     MeasurementValue,
+    MorphRequest,
 )
 from service.shape_routes import (
     GLB,
@@ -240,6 +242,12 @@ def create_body(
             f"no model {body.model!r}; models: {', '.join(MODELS)}",
             field="model",
         )
+    if body.morph is not None:
+        row = _create_morph(body, tenant, session, store)
+        response.headers["Location"] = f"/v1/bodies/{row.id}"
+        return _body_out(row)
+    if body.sex is None:
+        raise ApiError("missing_field", "sex is required ('female' or 'male')", field="sex")
     m = get_model(body.model)
     if body.fit_id is not None:
         if _features(body) or body.pca is not None or body.seed is not None:
@@ -265,6 +273,67 @@ def create_body(
         )  # fmt: skip
     response.headers["Location"] = f"/v1/bodies/{row.id}"
     return _body_out(row)
+
+
+def _create_morph(body: BodyCreate, tenant: str, session: Session, store: BlobStore) -> Body:
+    """Store ``(1 - t) from + t to``; model and sex of the nearer body (``sex`` may override)."""
+    from core.transfer import morph
+
+    spec: BodyMorph = body.morph  # type: ignore[assignment]
+    if body.fit_id is not None or _features(body) or body.pca is not None or body.seed is not None:
+        raise ApiError(
+            "validation_error",
+            "a morph takes only morph and optionally sex (no fit_id, features, pca or seed)",
+            field="morph",
+        )
+    a = _own(session, Body, spec.from_, tenant, "body")
+    b = _own(session, Body, spec.to, tenant, "body")
+    fits = {f for f in (a.fit_id, b.fit_id) if f is not None}
+    if len(fits) > 1:
+        raise ApiError(
+            "validation_error",
+            "the two bodies come from different fits: a stored blend could not be deleted with "
+            "both scans; send them to POST /v1/morphs instead",
+            field="morph",
+        )
+    near = a if spec.t < 0.5 else b
+    sex = body.sex or near.sex
+    get_model(near.model).space(sex)  # the model has this sex (else out_of_range)
+    V = morph(_load_vertices(store, a.blob_key), _load_vertices(store, b.blob_key), spec.t)
+    params = {"morph": {"from": a.id, "to": b.id, "t": spec.t}}
+    return _store_body(
+        session, store, tenant=tenant, V=V, model=near.model, sex=sex, source="morph",
+        params=params, fit_id=next(iter(fits), None), derived_from=a.id,
+    )  # fmt: skip
+
+
+@router.post(
+    "/morphs",
+    response_class=Response,
+    dependencies=[Depends(require_json)],
+    responses={
+        200: {
+            "description": "GLB: the first body as the mesh, one morph target (POSITION and "
+            "NORMAL deltas) per other body, named by body id in `mesh.extras.targetNames`",
+            "content": {GLB: {"schema": {"type": "string", "format": "binary"}}},
+        },
+        415: {"model": ErrorResponse, "description": "not application/json"},
+    },
+    tags=["bodies"],
+)
+def create_morph(
+    req: MorphRequest, tenant: TenantId, session: SessionDep, store: StoreDep
+) -> Response:
+    """2-16 of your bodies as one GLB with morph targets: any glTF viewer slides between
+    them (target weight 1 = that body)."""
+    from core.transfer import morph_glb
+
+    if len(set(req.bodies)) != len(req.bodies):
+        raise ApiError("validation_error", "bodies: each body at most once", field="bodies")
+    rows = [_own(session, Body, i, tenant, "body") for i in req.bodies]
+    Vs = [_load_vertices(store, r.blob_key) for r in rows]
+    data = morph_glb(Vs, names=[r.id for r in rows], F=_template_faces())
+    return Response(data, media_type=GLB)
 
 
 @router.get("/bodies", response_model=BodyPage, tags=["bodies"])

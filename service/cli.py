@@ -548,6 +548,60 @@ def register_from_measurements(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_from_measurements)
 
 
+# --------------------------------------------------------------------------- `morph`
+
+
+def _cmd_morph(args: argparse.Namespace) -> int:
+    from core.io import write_mesh
+    from core.shapespace.build import read_body
+    from core.transfer import MAX_BODIES, morph, morph_glb
+
+    paths = [_check_in_path(Path(b), "body") for b in args.bodies]
+    if not 2 <= len(paths) <= MAX_BODIES:
+        raise CliError(f"give 2 to {MAX_BODIES} bodies, got {len(paths)}")
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise CliError(f"the folder of --out does not exist: {out.parent}")
+    bodies = [read_body(p) for p in paths]
+    if args.t is not None:
+        if len(bodies) != 2:
+            raise CliError(f"--t blends exactly two bodies, got {len(bodies)}")
+        if not 0.0 <= args.t <= 1.0:
+            raise CliError(f"--t must lie in [0, 1], got {args.t}")
+        if out.suffix.lower() not in (".ply", ".obj", ".glb"):
+            raise CliError(f"--out must end in .ply, .obj or .glb, got {out.name!r}")
+        from core.template import load_template
+
+        write_mesh(out, morph(bodies[0], bodies[1], args.t), load_template().F)
+        msg = f"wrote {out}: (1 - {args.t}) {paths[0].name} + {args.t} {paths[1].name}"
+    else:
+        if out.suffix.lower() != ".glb":
+            raise CliError(f"--out must be a .glb file (morph targets), got {out.name!r}")
+        from core.io.writers import atomic_write
+
+        atomic_write(out, morph_glb(bodies, names=[p.stem for p in paths]))
+        names = ", ".join(p.stem for p in paths[1:])
+        msg = f"wrote {out}: {paths[0].stem} with morph targets {names}"
+    if not args.quiet:
+        print(msg)
+    return 0
+
+
+def register_morph(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "morph",
+        help="blend bodies: a GLB with morph targets, or one in-between body (--t)",
+        description="Bodies in template vertex order (*.ply, *.obj, *.npz with 'vertices'). "
+        "Without --t: a GLB of the first body with one morph target per other body (names = "
+        "file stems). With --t and two bodies: the body (1 - t) A + t B in the format of --out.",
+    )
+    p.add_argument("bodies", nargs="+", metavar="BODY", help="2-16 bodies (template order)")
+    p.add_argument("--out", required=True, metavar="OUT", help="M.glb (or .ply/.obj with --t)")
+    p.add_argument("--t", type=float, default=None, help="blend parameter in [0, 1]")
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_morph)
+
+
 # --------------------------------------------------------------------------- parser, main
 
 BUILTIN_COMMANDS: list[Registrar] = [
@@ -555,6 +609,7 @@ BUILTIN_COMMANDS: list[Registrar] = [
     register_demo,
     register_build_model,
     register_from_measurements,
+    register_morph,
 ]
 
 

@@ -279,15 +279,27 @@ class SynthesizedBody(BaseModel):
 
 # ----------------------------------------------------------------------------- bodies
 
-BodySource = Literal["model", "fit", "edit"]
+BodySource = Literal["model", "fit", "edit", "morph", "pose"]
 FiniteNumber = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+
+
+class BodyMorph(BaseModel):
+    """An in-between body ``(1 - t) from + t to`` of two stored bodies (paper §4.1)."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    from_: str = Field(alias="from", description="body id (t = 0)")
+    to: str = Field(description="body id (t = 1)")
+    t: float = Field(ge=0, le=1, allow_inf_nan=False, description="0 = `from`, 1 = `to`")
 
 
 class BodyCreate(SynthesizeRequest):
     """A body to store: synthesised from a shape model (the fields of
     ``POST /v1/models/{model}/synthesize``: ``{sex, height_m?, weight_kg?, age?,
-    <measurement>?}``, ``{sex, pca}`` or ``{sex, seed}``), or the fitted body of a succeeded fit
-    (``{fit_id, sex}``: a scan has no sex, so it must be given)."""
+    <measurement>?}``, ``{sex, pca}`` or ``{sex, seed}``), the fitted body of a succeeded fit
+    (``{fit_id, sex}``: a scan has no sex, so it must be given), or an in-between body of two
+    stored bodies (``{morph: {from, to, t}}``: model and sex those of the nearer body unless
+    ``sex`` is given)."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -296,14 +308,30 @@ class BodyCreate(SynthesizeRequest):
                 {"sex": "female", "height_m": 1.65, "weight_kg": 60},
                 {"model": "default", "sex": "male", "seed": 7},
                 {"sex": "male", "fit_id": "fit_0123456789abcdef0123"},
+                {"morph": {"from": "bdy_0123456789abcdef0123", "to": "bdy_...", "t": 0.3}},
             ],
         },
     )
 
+    sex: Sex | None = None  # type: ignore[assignment]  # required unless morph
     model: str = Field("default", description="the shape model (`GET /v1/models`)")
     fit_id: str | None = Field(
         None, description="take the body of this succeeded fit (then only `sex` and `model`)"
     )
+    morph: BodyMorph | None = Field(
+        None, description="store the in-between body of two of your bodies (then only `sex`)"
+    )
+
+
+class MorphRequest(BaseModel):
+    """Bodies to put in one GLB: the first as the mesh, one morph target per other body."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"bodies": ["bdy_0123456789abcdef0123", "bdy_..."]}]},
+    )
+
+    bodies: list[str] = Field(min_length=2, max_length=16, description="2-16 of your body ids")
 
 
 class BodyEdit(BaseModel):

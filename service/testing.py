@@ -173,6 +173,29 @@ def glb_vertices(data: bytes) -> np.ndarray:
     return np.frombuffer(data, np.float32, acc["count"] * 3, start).reshape(-1, 3)
 
 
+def glb_parts(data: bytes) -> tuple[dict[str, Any], Any]:
+    """The JSON chunk of a GLB and ``accessor(i) -> ndarray`` reading accessor ``i`` (float32,
+    uint8/16/32; VEC3/VEC4/MAT4/SCALAR), for tests of any GLB the project writes."""
+    import json
+    import struct
+
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20 : 20 + jlen])
+    bin_off = 20 + jlen + 8
+    dtypes = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}
+    widths = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+    def accessor(i: int) -> np.ndarray:
+        acc = doc["accessors"][i]
+        view = doc["bufferViews"][acc["bufferView"]]
+        start = bin_off + view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+        k = widths[acc["type"]]
+        a = np.frombuffer(data, dtypes[acc["componentType"]], acc["count"] * k, start)
+        return a.reshape(acc["count"], k) if k > 1 else a
+
+    return doc, accessor
+
+
 GLTF_DIR = ROOT / "tests" / "service" / "gltf"
 
 

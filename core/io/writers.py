@@ -12,6 +12,8 @@ import json
 import os
 import struct
 import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -186,6 +188,55 @@ def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
     return b + fill * (-len(b) % 4)
 
 
+@dataclass(frozen=True)
+class GlbMorphTarget:
+    """One glTF morph target: per-vertex displacements from the base mesh.
+
+    Attributes
+    ----------
+    name : the target's name (written to ``mesh.extras.targetNames``).
+    delta_positions : (n, 3) position deltas, metres.
+    delta_normals : (n, 3) normal deltas (unit target normals minus unit base normals), or None.
+    """
+
+    name: str
+    delta_positions: np.ndarray
+    delta_normals: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class GlbSkin:
+    """A glTF skin: a joint hierarchy in its rest (bind) pose and per-vertex influences.
+
+    Attributes
+    ----------
+    names : J joint names.
+    parents : (J,) int parent index (``parents[j] < j``), -1 for a root.
+    joints : (J, 3) rest joint positions (world = mesh frame), metres; joints carry no rotation
+        in the bind pose, so inverse bind matrices are translations by ``-joints``.
+    joint_index : (n, 4) int joint indices per vertex (``JOINTS_0``), < 65536.
+    weights : (n, 4) float weights per vertex (``WEIGHTS_0``); rows sum to 1.
+    """
+
+    names: Sequence[str]
+    parents: np.ndarray
+    joints: np.ndarray
+    joint_index: np.ndarray
+    weights: np.ndarray
+
+
+def _skin_weights_f32(w: np.ndarray) -> np.ndarray:
+    """(n, 4) float32 weights summing to 1 in float32 (the residual goes to the largest)."""
+    w = np.asarray(w, dtype=np.float64)
+    w = w / w.sum(axis=1, keepdims=True)
+    w32 = w.astype(np.float32)
+    top = np.argmax(w32, axis=1)
+    rows = np.arange(len(w32))
+    others = w32.sum(axis=1, dtype=np.float32) - w32[rows, top]
+    w32[rows, top] = np.float32(1.0) - others
+    return w32
+
+
 def write_glb(
     path_or_none: PathLike | None,
     V: np.ndarray,
@@ -193,6 +244,8 @@ def write_glb(
     *,
     normals: np.ndarray | None = None,
     colors: np.ndarray | None = None,
+    targets: Sequence[GlbMorphTarget] = (),
+    skin: GlbSkin | None = None,
 ) -> bytes:
     """Encode (and optionally write) a binary glTF 2.0 file with one mesh and one primitive.
 
@@ -203,6 +256,10 @@ def write_glb(
     F : (m, 3) triangles, or None for a point primitive.
     normals : (n, 3) optional; computed (area-weighted) when not given; written unit length.
     colors : (n, 3) optional uint8 RGB (or floats in [0, 1]), written as normalised RGBA bytes.
+    targets : morph targets (POSITION and, when given, NORMAL deltas); their names go to
+        ``mesh.extras.targetNames``, their default weights are 0.
+    skin : joints and per-vertex influences: the mesh node is skinned by a joint hierarchy
+        (one node per joint, translations only) under the scene's root.
 
     Returns
     -------
@@ -222,7 +279,10 @@ def write_glb(
     def add(data: np.ndarray, target: int, acc: dict) -> int:
         offset = sum(len(b) for b in blobs)
         raw = np.ascontiguousarray(data).tobytes()
-        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), "target": target})
+        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(raw)}
+        if target:
+            view["target"] = target
+        views.append(view)
         blobs.append(_pad4(raw))
         acc["bufferView"] = len(views) - 1
         accessors.append(acc)
@@ -273,17 +333,102 @@ def write_glb(
         prim["mode"] = 4
     else:
         prim["mode"] = 0
+    mesh: dict = {"name": "body", "primitives": [prim]}
+    if targets:
+        prim["targets"] = []
+        for tg in targets:
+            dV = np.asarray(tg.delta_positions, dtype=np.float64)
+            if dV.shape != (n, 3) or not np.isfinite(dV).all():
+                raise InputFormatError(
+                    f"morph target {tg.name!r}: delta_positions must be finite ({n}, 3)"
+                )
+            d32 = dV.astype(np.float32)
+            ta = {
+                "POSITION": add(
+                    d32,
+                    34962,
+                    {
+                        "componentType": 5126,
+                        "count": n,
+                        "type": "VEC3",
+                        "min": [float(v) for v in d32.min(axis=0)],
+                        "max": [float(v) for v in d32.max(axis=0)],
+                    },
+                )
+            }
+            if tg.delta_normals is not None:
+                dN = np.asarray(tg.delta_normals, dtype=np.float64)
+                if dN.shape != (n, 3) or not np.isfinite(dN).all():
+                    raise InputFormatError(
+                        f"morph target {tg.name!r}: delta_normals must be finite ({n}, 3)"
+                    )
+                ta["NORMAL"] = add(
+                    dN.astype(np.float32),
+                    34962,
+                    {"componentType": 5126, "count": n, "type": "VEC3"},
+                )
+            prim["targets"].append(ta)
+        mesh["weights"] = [0.0] * len(targets)
+        mesh["extras"] = {"targetNames": [str(tg.name) for tg in targets]}
+    nodes: list[dict] = [{"mesh": 0, "name": "body"}]
+    scene_nodes = [0]
+    skins: list[dict] = []
+    if skin is not None:
+        J = len(skin.names)
+        parents = np.asarray(skin.parents, dtype=np.int64)
+        joints = np.asarray(skin.joints, dtype=np.float64)
+        ji = np.asarray(skin.joint_index)
+        if parents.shape != (J,) or joints.shape != (J, 3) or ji.shape != (n, 4):
+            raise InputFormatError(
+                f"skin: parents ({J},), joints ({J}, 3) and joint_index ({n}, 4) expected, got "
+                f"{parents.shape}, {joints.shape}, {ji.shape}"
+            )
+        if (parents >= np.arange(J)).any() or (parents < -1).any():
+            raise InputFormatError("skin: every parent must come before its child")
+        if ji.min() < 0 or ji.max() >= J:
+            raise InputFormatError(f"skin: joint_index must lie in [0, {J})")
+        w32 = _skin_weights_f32(skin.weights)
+        ji = np.where(w32 > 0, ji, 0)  # glTF: unused influences point at joint 0 with weight 0
+        prim["attributes"]["JOINTS_0"] = add(
+            ji.astype(np.uint16),
+            34962,
+            {"componentType": 5123, "count": n, "type": "VEC4"},
+        )
+        prim["attributes"]["WEIGHTS_0"] = add(
+            w32, 34962, {"componentType": 5126, "count": n, "type": "VEC4"}
+        )
+        ibm = np.zeros((J, 4, 4), np.float32)
+        ibm[:, [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
+        ibm[:, 3, :3] = -joints  # column-major: the translation is the last column
+        ibm_acc = add(ibm.reshape(J, 16), 0, {"componentType": 5126, "count": J, "type": "MAT4"})
+        first = len(nodes)
+        for j in range(J):
+            p = parents[j]
+            local = joints[j] - (joints[p] if p >= 0 else 0.0)
+            node: dict = {"name": str(skin.names[j]), "translation": [float(x) for x in local]}
+            kids = (np.flatnonzero(parents == j) + first).tolist()
+            if kids:
+                node["children"] = kids
+            nodes.append(node)
+        roots = (np.flatnonzero(parents < 0) + first).tolist()
+        nodes[0]["skin"] = 0
+        scene_nodes += roots
+        skins.append({"inverseBindMatrices": ibm_acc, "joints": list(range(first, first + J))})
+        if len(roots) == 1:
+            skins[0]["skeleton"] = roots[0]
     binary = b"".join(blobs)
     gltf = {
         "asset": {"version": "2.0", "generator": "bodyspace"},
         "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": "body"}],
-        "meshes": [{"name": "body", "primitives": [prim]}],
+        "scenes": [{"nodes": scene_nodes}],
+        "nodes": nodes,
+        "meshes": [mesh],
         "buffers": [{"byteLength": len(binary)}],
         "bufferViews": views,
         "accessors": accessors,
     }
+    if skins:
+        gltf["skins"] = skins
     js = _pad4(json.dumps(gltf, separators=(",", ":")).encode("utf-8"), b" ")
     total = 12 + 8 + len(js) + 8 + len(binary)
     out = b"".join(

@@ -31,36 +31,60 @@ DEFAULT_FEATURES = (
 MESH_SUFFIXES = (".npz", ".ply", ".obj")
 
 
+def read_body(path: str | Path) -> np.ndarray:
+    """One body in template order: (13380, 3) float64 vertices, metres, from ``*.npz`` (array
+    ``vertices``), ``*.ply`` or ``*.obj`` (millimetres are detected by the height and converted).
+
+    Raises
+    ------
+    ModelFormatError
+        unreadable, not a body in template order, or an ``.npz`` without ``vertices``.
+    """
+    f = Path(path)
+    n = load_template().n_vertices
+    try:
+        if f.suffix.lower() == ".npz":
+            with np.load(f, allow_pickle=False) as z:
+                if "vertices" not in z.files:
+                    raise ModelFormatError(f"{f.name} has no 'vertices' array", path=str(f))
+                V = np.asarray(z["vertices"], dtype=np.float64)
+        else:
+            from core.io import read_mesh
+
+            V = np.asarray(read_mesh(f).V, dtype=np.float64)
+    except ModelFormatError:
+        raise
+    except Exception as e:
+        raise ModelFormatError(f"cannot read body {f.name}: {e}", path=str(f)) from None
+    if V.shape != (n, 3):
+        raise ModelFormatError(
+            f"{f.name}: a body must have {n} vertices in template order, got {V.shape}",
+            path=str(f),
+        )
+    if 1000.0 < np.ptp(V[:, 1]) < 2500.0:  # millimetres
+        V = V / 1000.0
+    return V
+
+
 def read_bodies(fits_dir: str | Path) -> dict[str, np.ndarray]:
-    """All bodies in a folder: id (file stem) -> (13380, 3) float64 vertices, metres."""
+    """All bodies in a folder (:func:`read_body`): id (file stem) -> (13380, 3) vertices, metres;
+    ``.npz`` files without ``vertices`` are skipped."""
     fits_dir = Path(fits_dir)
     if not fits_dir.is_dir():
         raise ModelFormatError(f"{fits_dir} is not a folder of fitted bodies", path=str(fits_dir))
-    n = load_template().n_vertices
     out: dict[str, np.ndarray] = {}
     for f in sorted(fits_dir.iterdir()):
         if f.suffix.lower() not in MESH_SUFFIXES or f.name.endswith(".tmp.npz"):
             continue
-        try:
-            if f.suffix.lower() == ".npz":
+        if f.suffix.lower() == ".npz":
+            try:
                 with np.load(f, allow_pickle=False) as z:
-                    if "vertices" not in z.files:
-                        continue
-                    V = np.asarray(z["vertices"], dtype=np.float64)
-            else:
-                from core.io import read_mesh
-
-                V = np.asarray(read_mesh(f).V, dtype=np.float64)
-        except Exception as e:
-            raise ModelFormatError(f"cannot read body {f.name}: {e}", path=str(f)) from None
-        if V.shape != (n, 3):
-            raise ModelFormatError(
-                f"{f.name}: a body must have {n} vertices in template order, got {V.shape}",
-                path=str(f),
-            )
-        if 1000.0 < np.ptp(V[:, 1]) < 2500.0:  # millimetres
-            V = V / 1000.0
-        out[f.stem] = V
+                    body = "vertices" in z.files
+            except Exception:
+                body = True  # read_body says what is wrong
+            if not body:
+                continue
+        out[f.stem] = read_body(f)
     if not out:
         raise ModelFormatError(f"no bodies (*.npz with 'vertices', *.ply, *.obj) in {fits_dir}")
     return out

@@ -1,0 +1,58 @@
+"""``bodyspace morph``: a validator-clean GLB with morph targets from body files, one in-between
+body with ``--t``, one-line errors."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.io import read_mesh, write_ply
+from core.synth import random_body
+from core.template import load_template
+from service.testing import glb_parts, validate_glb
+from tests.core.test_cli import assert_one_line_error, run_cli
+
+
+def _bodies(tmp_path, k: int) -> list:
+    F = load_template().F
+    out = []
+    for i in range(k):
+        V = random_body(np.random.default_rng(i), pose=False).V
+        p = tmp_path / f"b{i}.ply"
+        write_ply(p, V, F)
+        out.append((p, V))
+    return out
+
+
+def test_morph_glb_and_in_between(tmp_path):
+    (a, Va), (b, Vb), (c, Vc) = _bodies(tmp_path, 3)
+    out = tmp_path / "m.glb"
+    r = run_cli("morph", a, b, c, "--out", out)
+    assert r.returncode == 0, r.stderr
+    report = validate_glb(out)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(out.read_bytes())
+    mesh = doc["meshes"][0]
+    assert mesh["extras"]["targetNames"] == ["b1", "b2"]
+    base = accessor(mesh["primitives"][0]["attributes"]["POSITION"]).astype(np.float64)
+    for tg, V in zip(mesh["primitives"][0]["targets"], (Vb, Vc), strict=True):
+        assert np.abs(base + accessor(tg["POSITION"]) - V).max() < 1e-4
+
+    mid = tmp_path / "mid.ply"
+    r = run_cli("morph", a, b, "--t", "0.25", "--out", mid)
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(read_mesh(mid).V, 0.75 * Va + 0.25 * Vb, atol=1e-9)
+
+
+def test_morph_errors(tmp_path):
+    (a, _), (b, _), (c, _) = _bodies(tmp_path, 3)
+    assert_one_line_error(run_cli("morph", a, "--out", tmp_path / "m.glb"), "2 to 16")
+    assert_one_line_error(run_cli("morph", a, b, "--out", tmp_path / "m.ply"), ".glb")
+    assert_one_line_error(
+        run_cli("morph", a, b, c, "--t", "0.5", "--out", tmp_path / "m.ply"), "exactly two"
+    )
+    assert_one_line_error(
+        run_cli("morph", a, tmp_path / "nope.ply", "--out", tmp_path / "m.glb"), "not found"
+    )
+    bad = tmp_path / "small.ply"
+    write_ply(bad, np.zeros((10, 3)), None)
+    assert_one_line_error(run_cli("morph", a, bad, "--out", tmp_path / "m.glb"), "13380")
