@@ -25,6 +25,7 @@ from service.body_routes import router as bodies_router
 from service.db import migrate, ping, session_scope
 from service.fastpath import SynthesizeFastPath
 from service.jobs import make_runner
+from service.limits import BodyLimit
 from service.routes import router
 from service.runtime import tune_malloc
 from service.schemas import ErrorResponse, Health
@@ -105,6 +106,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings or get_settings()
     errors.install(app)
     app.add_middleware(SynthesizeFastPath)  # GLB synthesis without the routing machinery
+    # outermost: no JSON body above the limit reaches the app (nor the short path)
+    app.add_middleware(BodyLimit, limit=app.state.settings.max_json_bytes)
     app.include_router(router)
     app.include_router(models_router)
     app.include_router(bodies_router)

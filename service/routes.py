@@ -162,7 +162,7 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
     mfile = form.files.get("markers")
     if mfile is not None:
         mfmt = {".csv": "csv", ".json": "json"}.get(Path(mfile.filename).suffix.lower())
-        pts = read_markers(mfile.path, mfmt, valid_names=landmark_names())
+        pts = read_markers(mfile.path, mfmt, valid_names=landmark_names(), name=mfile.filename)
         markers = {k: [float(x) for x in v] for k, v in pts.items()}
     if scan.size <= settings.full_validation_max_bytes:
         raw = read_mesh(

@@ -39,6 +39,9 @@ class Settings(BaseSettings):
     # limits
     max_upload_bytes: int = 200 * 1024 * 1024
     max_marker_bytes: int = 1024 * 1024
+    max_json_bytes: int = Field(
+        1024 * 1024, description="largest JSON request body (413 body_too_large above it)"
+    )
     max_vertices: int = 5_000_000
     max_faces: int = 10_000_000
     full_validation_max_bytes: int = Field(

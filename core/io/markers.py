@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ import numpy as np
 from core.errors import MarkerError
 
 Source = str | os.PathLike | bytes | bytearray
+_ECHO = 60  # characters of user input quoted in a message
 
 
 def _load_text(source: Source) -> tuple[str, str]:
@@ -75,21 +77,21 @@ def _to_point(vals: Iterable[Any], where: str, what: str) -> np.ndarray:
                 ok = False
         if not ok:
             raise MarkerError(
-                f"{what}: {where} has a non-numeric coordinate {v!r}; use plain numbers",
+                f"{what}: {where} has a non-numeric coordinate {_clip(repr(v))}; use plain numbers",
                 where=where,
             )
         if not math.isfinite(f):
             raise MarkerError(
-                f"{what}: {where} has a non-finite coordinate {v!r}; use finite numbers, or "
-                "leave the marker out if it was not measured",
+                f"{what}: {where} has a non-finite coordinate {_clip(repr(v))}; use finite "
+                "numbers, or leave the marker out if it was not measured",
                 where=where,
             )
         out.append(f)
     return np.array(out, dtype=np.float64)
 
 
-def _parse_csv(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
-    rows: list[tuple[str, np.ndarray, str]] = []
+def _parse_csv(text: str, what: str) -> list[tuple[str, Any, str]]:
+    rows: list[tuple[str, Any, str]] = []
     header_seen = False
     for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
@@ -111,7 +113,8 @@ def _parse_csv(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
                     [float(c) for c in cells[1:]]
                 except ValueError:
                     raise MarkerError(
-                        f"{what}: line {lineno} should be the header 'name,x,y,z', got {s!r}",
+                        f"{what}: line {lineno} should be the header 'name,x,y,z', "
+                        f"got {_clip(s)!r}",
                         line=lineno,
                     ) from None
                 # no header row: accept the data row as is
@@ -121,19 +124,32 @@ def _parse_csv(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
                 f"{what}: {where} has {len(cells)} columns, expected 4: name,x,y,z",
                 line=lineno,
             )
-        rows.append((cells[0], _to_point(cells[1:], where, what), where))
+        rows.append((cells[0], cells[1:], where))
     return rows
 
 
-def _parse_json(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
+def _clip(s: str, n: int = _ECHO) -> str:
+    """At most ``n`` characters of user input for a message (``…`` marks a cut)."""
+    return s if len(s) <= n else s[: n - 1] + "…"
+
+
+def _names(names: Iterable[str], n: int = 10) -> str:
+    """A bounded list of (clipped) names for a message: the first ``n`` and how many more."""
+    names = list(names)
+    shown = ", ".join(repr(_clip(x, 40)) for x in names[:n])
+    return shown + (f" and {len(names) - n:,} more" if len(names) > n else "")
+
+
+def _parse_json(text: str, what: str) -> list[tuple[str, Any, str]]:
     def no_dups(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-        names = [k for k, _ in pairs]
-        dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
+        obj = dict(pairs)
+        if len(obj) != len(pairs):  # linear: count names only when some repeat
+            dup = sorted(k for k, c in Counter(k for k, _ in pairs).items() if c > 1)
             raise MarkerError(
-                f"{what}: duplicate marker name(s) {dup}; give each marker once", duplicates=dup
+                f"{what}: duplicate marker name(s) {_names(dup)}; give each marker once",
+                duplicates=[_clip(d, 40) for d in dup[:10]],
             )
-        return dict(pairs)
+        return obj
 
     try:
         obj = json.loads(text, object_pairs_hook=no_dups)
@@ -141,18 +157,23 @@ def _parse_json(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
         raise MarkerError(
             f"{what}: invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}", line=e.lineno
         ) from None
-    rows: list[tuple[str, np.ndarray, str]] = []
+    except RecursionError:
+        raise MarkerError(
+            f"{what}: JSON nested too deeply; markers are "
+            '{"name": [x, y, z], ...} or a list of {"name", "x", "y", "z"} objects'
+        ) from None
+    rows: list[tuple[str, Any, str]] = []
     if isinstance(obj, dict) and isinstance(obj.get("markers"), list | dict):
         obj = obj["markers"]
     if isinstance(obj, dict):
         for name, val in obj.items():
-            where = f"marker {name!r}"
+            where = f"marker {_clip(name)!r}"
             if not isinstance(val, list | tuple):
                 raise MarkerError(
-                    f"{what}: {where} must be a list [x, y, z], got {json.dumps(val)[:60]}",
+                    f"{what}: {where} must be a list [x, y, z], got {_clip(json.dumps(val))}",
                     where=where,
                 )
-            rows.append((str(name), _to_point(val, where, what), where))
+            rows.append((str(name), val, where))
     elif isinstance(obj, list):
         for i, item in enumerate(obj):
             where = f"entry {i}"
@@ -160,11 +181,11 @@ def _parse_json(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
                 raise MarkerError(
                     f"{what}: {where} must be an object with keys name, x, y, z", where=where
                 )
-            where = f"entry {i} ({item['name']!r})"
+            where = f"entry {i} ({_clip(str(item['name']))!r})"
             if all(k in item for k in "xyz"):
-                pt = _to_point([item["x"], item["y"], item["z"]], where, what)
+                pt = [item["x"], item["y"], item["z"]]
             elif isinstance(item.get("position"), list):
-                pt = _to_point(item["position"], where, what)
+                pt = item["position"]
             else:
                 raise MarkerError(f"{what}: {where} lacks x, y, z", where=where)
             rows.append((str(item["name"]), pt, where))
@@ -177,7 +198,11 @@ def _parse_json(text: str, what: str) -> list[tuple[str, np.ndarray, str]]:
 
 
 def read_markers(
-    source: Source, fmt: str | None = None, *, valid_names: Iterable[str]
+    source: Source,
+    fmt: str | None = None,
+    *,
+    valid_names: Iterable[str],
+    name: str | None = None,
 ) -> dict[str, np.ndarray]:
     """Read a marker file.
 
@@ -191,6 +216,8 @@ def read_markers(
         By default from the extension, else from the content.
     valid_names : iterable of str
         The allowed names (the template's landmark names).
+    name : str, optional
+        What messages call the file (e.g. an upload's filename); default its path.
 
     Returns
     -------
@@ -203,30 +230,32 @@ def read_markers(
         Unknown or duplicate names, wrong column counts, non-numeric or non-finite values.
     """
     text, what = _load_text(source)
+    what = what if name is None else name
     if not text.strip():
         raise MarkerError(f"{what}: marker file is empty")
     f = _detect(text, source, fmt)
     rows = _parse_csv(text, what) if f == "csv" else _parse_json(text, what)
     valid = set(valid_names)
-    out: dict[str, np.ndarray] = {}
+    seen: dict[str, str] = {}
     unknown: list[str] = []
-    for name, pt, where in rows:
-        if name in out:
+    for label, _, where in rows:  # names first (cheap), then the coordinates
+        if label in seen:
             raise MarkerError(
-                f"{what}: duplicate marker {name!r} at {where}; give each marker once",
-                name=name,
+                f"{what}: duplicate marker {_clip(label)!r} at {where}; give each marker once",
+                name=_clip(label),
             )
-        if name not in valid:
-            unknown.append(name)
-        out[name] = pt
+        if label not in valid:
+            unknown.append(label)
+        seen[label] = where
     if unknown:
         raise MarkerError(
-            f"{what}: unknown marker name(s) {unknown}; valid names are: "
+            f"{what}: unknown marker name(s) {_names(unknown)}; valid names are: "
             f"{', '.join(sorted(valid))}",
-            unknown=unknown,
+            unknown=[_clip(u, 40) for u in unknown[:10]],
+            n_unknown=len(unknown),
             valid=sorted(valid),
         )
-    return out
+    return {label: _to_point(vals, where, what) for label, vals, where in rows}
 
 
 def write_markers_csv(path: str | os.PathLike, markers: Mapping[str, Any]) -> None:

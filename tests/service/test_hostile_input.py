@@ -90,3 +90,65 @@ def test_npz_bomb_upload_refused_with_bounded_rss(client, server, npz_bomb):
     assert "bomb.npz" in err["message"] and str(server["data"]) not in err["message"]
     assert time.process_time() - t < 5
     assert _vm(pid, "VmHWM") <= before
+
+
+# ----------------------------------------------------------------------------- item 3: JSON
+
+
+def _many_markers(n: int, dup: bool = False) -> bytes:
+    names = [f"m{i:06d}" for i in range(n)]
+    if dup:
+        names[-1] = names[0]
+    return ("{" + ",".join(f'"{k}": [0, 1, 0]' for k in names) + "}").encode()
+
+
+@pytest.mark.parametrize("dup", [False, True])
+def test_marker_name_check_is_linear(dup):
+    from core.errors import MarkerError
+    from core.io import read_markers
+
+    data = _many_markers(40_000, dup)
+    assert len(data) > 800_000
+    t = time.process_time()
+    with pytest.raises(MarkerError, match="duplicate" if dup else "unknown") as e:
+        read_markers(data, "json", valid_names=["Vertex"])
+    assert time.process_time() - t < 0.5  # was 14 s (quadratic duplicate check)
+    assert len(str(e.value)) < 2_000  # names listed up to 10, not all 40,000
+
+
+def test_marker_upload_of_40000_names_answers_fast(client, sim):
+    files = {
+        "scan": ("scan.ply", sim.scan.read_bytes(), "application/octet-stream"),
+        "markers": ("m.json", _many_markers(40_000, dup=True), "application/json"),
+    }
+    r = client.post("/v1/scans", files=files)
+    assert r.status_code == 422, r.text
+    assert "duplicate" in r.json()["error"]["message"] and len(r.content) < 4_000
+
+
+def _big_json(n_bytes: int) -> bytes:
+    return b'{"sex": "female", "pad": "' + b"x" * n_bytes + b'"}'
+
+
+def test_json_body_over_the_limit_refused_from_content_length(client):
+    r = client.post("/v1/models/default/synthesize", content=_big_json(20_000_000),
+                    headers={"content-type": "application/json"})  # fmt: skip
+    assert r.status_code == 413, r.text
+    err = r.json()["error"]
+    assert err["code"] == "body_too_large" and err["details"]["limit_bytes"] == 1024 * 1024
+
+
+@pytest.mark.parametrize("path", ["/v1/models/default/synthesize", "/v1/fits", "/v1/bodies"])
+def test_chunked_json_body_over_the_limit_refused_while_streaming(client, path):
+    sent = [0]
+
+    def chunks():
+        yield b'{"pad": "'
+        for _ in range(320):  # 20 MB in 64 KB chunks, no Content-Length
+            sent[0] += 1
+            yield b"x" * 65_536
+        yield b'"}'
+
+    r = client.post(path, content=chunks(), headers={"content-type": "application/json"})
+    assert r.status_code == 413, r.text
+    assert r.json()["error"]["code"] == "body_too_large"
