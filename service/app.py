@@ -10,6 +10,7 @@ import fcntl
 import gc
 import logging
 import os
+import time
 from collections.abc import AsyncIterator, Iterator
 from contextlib import asynccontextmanager, contextmanager
 
@@ -24,7 +25,7 @@ from service.blobs import make_store
 from service.body_routes import router as bodies_router
 from service.db import migrate, ping, session_scope
 from service.fastpath import SynthesizeFastPath
-from service.jobs import make_runner
+from service.jobs import JobRunner, make_runner
 from service.limits import BodyLimit
 from service.routes import router
 from service.runtime import tune_malloc
@@ -94,6 +95,23 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         runner.shutdown()
 
 
+def _readiness(st: Settings, runner: JobRunner) -> tuple[bool, dict[str, str]]:
+    """(ready, checks): the database answers, jobs can be enqueued; ``checks["workers"]`` says
+    why fits would wait (distributed mode without a live worker)."""
+    checks: dict[str, str] = {}
+    ok = True
+    for name, fn in (("database", lambda: ping(st)), ("jobs", runner.check)):
+        try:
+            warning = fn()
+            checks[name] = "ok"
+            if name == "jobs" and st.distributed:
+                checks["workers"] = warning or "ok"
+        except Exception as e:
+            ok = False
+            checks[name] = f"{type(e).__name__}: {e}"[:300]
+    return ok, checks
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app (settings default to :func:`get_settings`)."""
     app = FastAPI(
@@ -124,22 +142,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         tags=["health"],
     )
     def readyz(request: Request) -> Health | JSONResponse:
-        """Readiness: the database and the broker (or the local pool) are reachable."""
+        """Readiness: the database and the broker (or the local pool) are reachable and jobs
+        can be enqueued (else 503 ``not_ready``); ``degraded`` (200) when fits are accepted but
+        no worker consumes the queue. The answer is reused for ``BODYSPACE_READY_CACHE_S``."""
         st: Settings = request.app.state.settings
-        checks: dict[str, str] = {}
-        ok = True
-        for name, fn in (("database", lambda: ping(st)), ("jobs", request.app.state.runner.check)):
-            try:
-                fn()
-                checks[name] = "ok"
-            except Exception as e:
-                ok = False
-                checks[name] = f"{type(e).__name__}: {e}"[:300]
-        mode = "distributed" if st.distributed else "embedded"
+        cached = getattr(request.app.state, "ready", None)
+        if cached is not None and time.monotonic() - cached[0] < st.ready_cache_s:
+            ok, checks = cached[1], cached[2]
+        else:
+            ok, checks = _readiness(st, request.app.state.runner)
+            request.app.state.ready = (time.monotonic(), ok, checks)
         if not ok:
             body = errors.error_body("not_ready", "a dependency is not reachable", checks)
             return JSONResponse(body, 503)
-        return Health(status="ok", mode=mode, checks=checks)
+        mode = "distributed" if st.distributed else "embedded"
+        status = "ok" if all(v == "ok" for v in checks.values()) else "degraded"
+        return Health(status=status, mode=mode, checks=checks)
 
     return app
 

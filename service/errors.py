@@ -54,6 +54,7 @@ API_ERRORS: dict[str, tuple[int, str]] = {
     "validation_error": (422, "the request is not valid"),
     "bad_request": (400, "bad request"),
     "not_ready": (503, "a dependency is not reachable"),
+    "queue_unavailable": (503, "the job queue cannot take the fit now: nothing was stored, retry"),
     "internal_error": (500, "internal error"),
 }
 
@@ -61,13 +62,22 @@ API_ERRORS: dict[str, tuple[int, str]] = {
 class ApiError(Exception):
     """An error answered with status and code from :data:`API_ERRORS`."""
 
-    def __init__(self, code: str, message: str | None = None, **details: Any) -> None:
+    def __init__(
+        self,
+        code: str,
+        message: str | None = None,
+        *,
+        retry_after: int | None = None,
+        **details: Any,
+    ) -> None:
         status, default = API_ERRORS[code]
         super().__init__(message or default)
         self.status = status
         self.code = code
         self.message = message or default
         self.details = details
+        #: seconds, sent as ``Retry-After`` (429 / 503 answers)
+        self.retry_after = retry_after
 
 
 def error_body(code: str, message: str, details: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -112,7 +122,8 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ApiError)
     async def _api(_: Request, exc: ApiError) -> JSONResponse:
-        return JSONResponse(error_body(exc.code, exc.message, exc.details), exc.status)
+        headers = None if exc.retry_after is None else {"Retry-After": str(exc.retry_after)}
+        return JSONResponse(error_body(exc.code, exc.message, exc.details), exc.status, headers)
 
     @app.exception_handler(BodyspaceError)
     async def _core(_: Request, exc: BodyspaceError) -> JSONResponse:

@@ -41,8 +41,9 @@ class JobRunner(Protocol):
     def submit(self, fit_id: str) -> None:
         """Enqueue a fit whose row is already committed."""
 
-    def check(self) -> None:
-        """Raise if jobs cannot be run now (readiness)."""
+    def check(self) -> str | None:
+        """Raise if jobs cannot be accepted now; a message if they are accepted but would not
+        run soon (readiness says ``degraded``), else None."""
 
     def shutdown(self) -> None:
         """Stop accepting jobs."""
@@ -209,9 +210,10 @@ class EmbeddedRunner:
             self._pending.clear()
         recover(self.submit, self.settings, on_start=True, requeue_running=True)
 
-    def check(self) -> None:
+    def check(self) -> str | None:
         if not self._started or (self.is_leader and self._pool is None):
             raise RuntimeError("the embedded job runner is not started")
+        return None
 
     def shutdown(self) -> None:
         self._stop.set()
@@ -229,11 +231,26 @@ class EmbeddedRunner:
             self._lock_fd = None
 
 
+def worker_beat_prefix(settings: Settings) -> str:
+    """Redis key prefix of the beats of the workers consuming ``settings.queue_name``."""
+    return f"bodyspace:workers:{settings.queue_name}:"
+
+
 class CeleryRunner:
-    """Publishes jobs to Celery over Redis (the broker named by ``BODYSPACE_BROKER_URL``)."""
+    """Publishes jobs to Celery over Redis (the broker named by ``BODYSPACE_BROKER_URL``).
+
+    Readiness (:meth:`check`): the broker answers and the last enqueue did not fail (within
+    :data:`ENQUEUE_FAILURE_S`), else not ready; no worker beat under
+    :func:`worker_beat_prefix` (each ``bodyspace worker`` refreshes its key every
+    ``worker_beat_interval_s``, expiring after ``worker_beat_ttl_s``) -> degraded.
+    """
+
+    #: Seconds a failed enqueue keeps readiness failing (unless an enqueue succeeds since).
+    ENQUEUE_FAILURE_S = 10.0
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
+        self._failed: tuple[float, str] | None = None
 
     def start(self) -> None:
         """Workers recover jobs on their start and periodically; the API only publishes."""
@@ -241,9 +258,14 @@ class CeleryRunner:
     def submit(self, fit_id: str) -> None:
         from worker.tasks import submit
 
-        submit(fit_id)
+        try:
+            submit(fit_id)
+        except Exception as e:
+            self._failed = (time.monotonic(), f"{type(e).__name__}: {e}"[:200])
+            raise
+        self._failed = None
 
-    def check(self) -> None:
+    def check(self) -> str | None:
         import redis
 
         client = redis.Redis.from_url(
@@ -251,8 +273,15 @@ class CeleryRunner:
         )
         try:
             client.ping()
+            failed = self._failed
+            if failed is not None and time.monotonic() - failed[0] < self.ENQUEUE_FAILURE_S:
+                raise RuntimeError(f"enqueueing a job failed: {failed[1]}")
+            n = sum(1 for _ in client.scan_iter(match=worker_beat_prefix(self.settings) + "*"))
         finally:
             client.close()
+        if n == 0:
+            return f"no worker consumes the queue {self.settings.queue_name!r}: fits wait"
+        return None
 
     def shutdown(self) -> None:
         pass

@@ -313,7 +313,10 @@ def delete_scan(scan_id: str, tenant: TenantId, session: SessionDep, store: Stor
     status_code=202,
     response_model=FitOut,
     dependencies=[Depends(require_json)],
-    responses={415: {"model": ErrorResponse, "description": "not application/json"}},
+    responses={
+        415: {"model": ErrorResponse, "description": "not application/json"},
+        503: {"model": ErrorResponse, "description": "the job queue is unreachable (Retry-After)"},
+    },
     tags=["fits"],
 )
 def create_fit(
@@ -371,8 +374,14 @@ def create_fit(
     session.commit()  # the row is the source of truth: committed before it is enqueued
     try:
         runner.submit(fit.id)
-    except Exception as e:  # stays queued in the database; recovery enqueues it later
-        log.warning("enqueue of %s failed (recovery will retry): %s", fit.id, e)
+    except Exception as e:
+        # Not accepted: a 202 would promise a job that runs only when some worker's recovery
+        # sweep finds the row (up to REQUEUE_AFTER_S later). The row goes; a message that did
+        # reach the broker finds no row and is skipped by the worker.
+        log.warning("enqueue of %s failed: %s: answered 503", fit.id, e)
+        session.delete(fit)
+        session.commit()
+        raise ApiError("queue_unavailable", retry_after=5) from None
     response.headers["Location"] = f"/v1/fits/{fit.id}"
     return _fit_out(fit)
 

@@ -59,6 +59,15 @@ class Settings(BaseSettings):
     requeue_after_s: float = 600.0
     max_attempts: int = 3
     queue_name: str = "bodyspace"
+    worker_beat_interval_s: float = Field(
+        5.0, description="distributed: seconds between a worker's 'I consume the queue' beats"
+    )
+    worker_beat_ttl_s: float = Field(
+        15.0, description="distributed: a worker without a beat for this long counts as gone"
+    )
+    ready_cache_s: float = Field(
+        2.0, description="seconds /readyz reuses its answer (probes stay cheap)"
+    )
 
     @property
     def resolved_database_url(self) -> str:

@@ -10,7 +10,10 @@ worker re-enqueues jobs the database says are queued or whose running worker sto
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import socket
 import threading
 import uuid
 
@@ -89,8 +92,41 @@ def _on_init(**_: object) -> None:
     migrate()
 
 
+def _beat_key(node: str) -> str:
+    from service.jobs import worker_beat_prefix
+
+    return worker_beat_prefix(get_settings()) + node
+
+
+def _beat(node: str) -> None:
+    """Tell the API that this worker consumes the queue (``/readyz``): a Redis key with a TTL,
+    refreshed until shutdown, deleted then."""
+    import redis
+
+    s = get_settings()
+    client = redis.Redis.from_url(s.broker_url, socket_connect_timeout=2, socket_timeout=2)
+    key, ttl = _beat_key(node), max(1, round(s.worker_beat_ttl_s))
+    while True:
+        try:
+            client.set(key, f"{os.getpid()}", ex=ttl)
+        except Exception as e:  # the broker is down: the key expires, readiness says so
+            log.warning("worker beat failed: %s", e)
+        if _sweeper_stop.wait(s.worker_beat_interval_s):
+            break
+    with contextlib.suppress(Exception):
+        client.delete(key)
+    client.close()
+
+
+_beat_thread: threading.Thread | None = None
+
+
 @signals.worker_ready.connect
-def _on_ready(**_: object) -> None:
+def _on_ready(sender: object = None, **_: object) -> None:
+    global _beat_thread
+    node = getattr(sender, "hostname", None) or f"{socket.gethostname()}.{os.getpid()}"
+    _beat_thread = threading.Thread(target=_beat, args=(node,), daemon=True, name="worker-beat")
+    _beat_thread.start()
     jobs.recover(submit, on_start=True)
 
     def sweep() -> None:
@@ -107,6 +143,8 @@ def _on_ready(**_: object) -> None:
 @signals.worker_shutdown.connect
 def _on_shutdown(**_: object) -> None:
     _sweeper_stop.set()
+    if _beat_thread is not None:  # its key deleted: readiness sees the worker gone at once
+        _beat_thread.join(timeout=5)
 
 
 def main(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from service.testing import glb_vertices, upload_scan, validate_glb, wait_state
@@ -13,11 +15,30 @@ def _logs(*procs) -> str:
     return "\n".join(f"--- {p.log.name}\n{p.output()[-4000:]}" for p in procs)
 
 
-def test_ready_reports_database_and_broker(client):
-    r = client.get("/readyz")
-    assert r.status_code == 200, r.text
-    assert r.json()["mode"] == "distributed"
-    assert r.json()["checks"] == {"database": "ok", "jobs": "ok"}
+def _ready(client, status: str, timeout: float = 30.0) -> dict:
+    """Poll ``/readyz`` (200) until it says ``status``."""
+    t_end = time.monotonic() + timeout
+    while True:
+        r = client.get("/readyz")
+        assert r.status_code == 200, r.text
+        if r.json()["status"] == status or time.monotonic() > t_end:
+            return r.json()
+        time.sleep(0.2)
+
+
+def test_ready_says_degraded_without_a_worker_and_ok_with_one(client, workers):
+    # no worker consumes the queue (a killed worker's beat expires after WORKER_BEAT_TTL_S)
+    body = _ready(client, "degraded")
+    assert body["status"] == "degraded" and body["mode"] == "distributed", body
+    assert body["checks"]["database"] == "ok" and body["checks"]["jobs"] == "ok"
+    assert "no worker consumes the queue" in body["checks"]["workers"], body
+    w = workers("wr")
+    body = _ready(client, "ok", timeout=60)
+    assert body["checks"] == {"database": "ok", "jobs": "ok", "workers": "ok"}, (body, _logs(w))
+    w.stop()  # a stopped worker deletes its beat: degraded again at once (+ the answer cache)
+    t0 = time.monotonic()
+    assert _ready(client, "degraded", timeout=10)["status"] == "degraded"
+    assert time.monotonic() - t0 < 5
 
 
 def test_end_to_end_on_a_celery_worker(client, workers, sim, tmp_path):
@@ -81,7 +102,7 @@ def test_flushed_broker_jobs_are_recovered_from_the_database(
         assert done["state"] == "succeeded", (done, _logs(w))
 
 
-def test_job_accepted_while_broker_is_down_runs_later(env, client, workers, sim, tmp_path):
+def test_broker_down_not_ready_and_fit_refused_with_503(env, client, sim, tmp_path):
     from service.testing import free_port, start_server
 
     down = dict(env, BODYSPACE_BROKER_URL="redis://127.0.0.1:1/0")  # nothing listens there
@@ -93,14 +114,17 @@ def test_job_accepted_while_broker_is_down_runs_later(env, client, workers, sim,
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=client.headers) as c:
             ready = c.get("/readyz")
             assert ready.status_code == 503 and ready.json()["error"]["code"] == "not_ready"
+            assert "ConnectionError" in ready.json()["error"]["details"]["jobs"]
             scan = upload_scan(c, sim).json()
+            before = {f["id"] for f in c.get("/v1/fits", params={"limit": 200}).json()["items"]}
             r = c.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST})
-            assert r.status_code == 202, r.text  # the row is committed: the job is not lost
+            assert r.status_code == 503, r.text  # not 202 for a job nothing will run
+            assert r.json()["error"]["code"] == "queue_unavailable"
+            assert int(r.headers["Retry-After"]) > 0
+            after = {f["id"] for f in c.get("/v1/fits", params={"limit": 200}).json()["items"]}
+            assert after == before  # nothing stored that a later recovery would run
     finally:
         api.stop()
-    w = workers("w4")  # recovers it from the database on start
-    done = wait_state(client, r.json()["id"], timeout=180)
-    assert done["state"] == "succeeded", (done, _logs(w))
 
 
 def test_time_limit_fails_the_job(env, client, sim, tmp_path):
