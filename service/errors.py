@@ -48,6 +48,7 @@ API_ERRORS: dict[str, tuple[int, str]] = {
     "fit_not_ready": (409, "the fit has not succeeded (yet): see its state"),
     "upload_too_large": (413, "the upload is larger than the limit"),
     "body_too_large": (413, "the JSON body is larger than the limit (BODYSPACE_MAX_JSON_BYTES)"),
+    "too_many_parts": (413, "the multipart body has too many parts"),
     "unsupported_media_type": (415, "unsupported content type"),
     "missing_field": (422, "a required field is missing"),
     "markers_required": (422, "markers are required: upload them with the scan or the fit"),

@@ -7,6 +7,7 @@ streams in: an oversized upload is answered ``413`` without storing it.
 from __future__ import annotations
 
 import contextlib
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -18,6 +19,7 @@ from service.blobs import BlobStore
 from service.errors import ApiError
 
 FIELD_LIMIT = 64 * 1024
+MAX_PARTS = 16  # parts (files and text fields) in one body
 DRAIN_LIMIT = 64 * 1024 * 1024  # read (and discard) at most this much past a limit, then answer
 
 
@@ -49,6 +51,31 @@ class _TooLargeError(Exception):
         self.name, self.limit = name, limit
 
 
+class _RefusedError(Exception):
+    def __init__(self, error: ApiError) -> None:
+        self.error = error
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def safe_filename(name: str) -> str:
+    """An upload's filename as stored and shown: its last path component, without control
+    characters (NUL, newlines, ...), at most 200 characters (the extension kept); ``upload``
+    when nothing is left."""
+    base = _CONTROL.sub("", name).replace("\\", "/").rsplit("/", 1)[-1].strip()
+    if base in ("", ".", ".."):
+        return "upload"
+    if len(base) > 200:
+        stem, dot, ext = base.rpartition(".")
+        base = stem[:190] + dot + ext[:9] if dot and len(ext) <= 9 else base[:200]
+    return base
+
+
+def _clip(s: str, n: int = 60) -> str:
+    return s if len(s) <= n else s[: n - 1] + "…"
+
+
 async def _drain(request: Request, budget: int) -> None:
     read = 0
     async for chunk in request.stream():
@@ -60,8 +87,13 @@ async def _drain(request: Request, budget: int) -> None:
 async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[str, int]) -> Form:
     """Parse a ``multipart/form-data`` body; ``file_limits`` maps file field -> max bytes.
 
+    Limits hold while the body streams in, whether or not ``Content-Length`` is sent: each part's
+    bytes, the body's total bytes (the file limits + 16 text fields), at most :data:`MAX_PARTS`
+    parts, and file parts only under the names of ``file_limits``.
+
     Raises :class:`ApiError` ``unsupported_media_type`` (not multipart), ``upload_too_large``
-    (a part over its limit) or ``bad_request`` (a malformed body).
+    (a part or the body over its limit), ``too_many_parts``, ``validation_error`` (a file part
+    under another name) or ``bad_request`` (a malformed body).
     """
     ctype, params = parse_options_header(request.headers.get("content-type", ""))
     if ctype != b"multipart/form-data" or b"boundary" not in params:
@@ -87,6 +119,16 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
 
     def on_part_begin() -> None:
         state["headers"] = {}
+        state["parts"] = state.get("parts", 0) + 1
+        if state["parts"] > MAX_PARTS:
+            raise _RefusedError(
+                ApiError(
+                    "too_many_parts",
+                    f"the body has more than {MAX_PARTS} parts; send the scan, the markers "
+                    "and the text fields once each",
+                    limit=MAX_PARTS,
+                )
+            )
 
     def on_header_field(data: bytes, start: int, end: int) -> None:
         state["hname"] += data[start:end]
@@ -103,8 +145,17 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
         name = disp.get(b"name", b"").decode("utf-8", "replace")
         filename = disp.get(b"filename")
         state["name"] = name
+        if filename is not None and name not in file_limits:
+            raise _RefusedError(
+                ApiError(
+                    "validation_error",
+                    f"unexpected file part {_clip(name)!r}; files go in "
+                    f"{', '.join(repr(k) for k in file_limits)}",
+                    field=_clip(name),
+                )
+            )
         if filename is not None:
-            fname = Path(filename.decode("utf-8", "replace").replace("\\", "/")).name
+            fname = safe_filename(filename.decode("utf-8", "replace"))
             suffix = Path(fname).suffix.lower()[:8]
             up = UploadedFile(
                 name,
@@ -156,19 +207,30 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
             "on_headers_finished": on_headers_finished,
         },
     )
+    total = 0
     try:
         async for chunk in request.stream():
+            total += len(chunk)
+            if total > total_limit:
+                raise _TooLargeError("body", total_limit)
             parser.write(chunk)
         parser.finalize()
+    except _RefusedError as e:
+        if out["fh"] is not None:
+            out["fh"].close()
+        form.cleanup()
+        await _drain(request, DRAIN_LIMIT)
+        raise e.error from None
     except _TooLargeError as e:
         if out["fh"] is not None:
             out["fh"].close()
         form.cleanup()
         await _drain(request, DRAIN_LIMIT)
+        what = "the body" if e.name == "body" else f"the {_clip(e.name)!r} part"
         raise ApiError(
             "upload_too_large",
-            f"the {e.name!r} part is larger than its limit of {e.limit:,} bytes",
-            field=e.name,
+            f"{what} is larger than its limit of {e.limit:,} bytes",
+            field=_clip(e.name),
             limit_bytes=e.limit,
         ) from None
     except ApiError:
@@ -178,5 +240,5 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
         if out["fh"] is not None:
             out["fh"].close()
         form.cleanup()
-        raise ApiError("bad_request", f"malformed multipart body: {e}") from None
+        raise ApiError("bad_request", f"malformed multipart body: {_clip(str(e))}") from None
     return form

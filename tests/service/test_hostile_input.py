@@ -152,3 +152,74 @@ def test_chunked_json_body_over_the_limit_refused_while_streaming(client, path):
     r = client.post(path, content=chunks(), headers={"content-type": "application/json"})
     assert r.status_code == 413, r.text
     assert r.json()["error"]["code"] == "body_too_large"
+
+
+# ----------------------------------------------------------------------------- item 4: multipart
+
+BOUNDARY = "hostileboundary1234"
+
+
+def _part(name: str, payload: bytes, filename: str | None = None) -> bytes:
+    disp = f'form-data; name="{name}"' + (f'; filename="{filename}"' if filename else "")
+    return f"--{BOUNDARY}\r\nContent-Disposition: {disp}\r\n\r\n".encode() + payload + b"\r\n"
+
+
+def _chunked_post(client, parts):
+    """POST a multipart body as a generator: chunked, no Content-Length."""
+    sent = [0]
+
+    def gen():
+        for p in parts():
+            sent[0] += len(p)
+            yield p
+        yield f"--{BOUNDARY}--\r\n".encode()
+
+    headers = {"content-type": f"multipart/form-data; boundary={BOUNDARY}"}
+    r = client.post("/v1/scans", content=gen(), headers=headers)
+    return r, sent[0]
+
+
+def test_chunked_upload_with_1600_text_fields_refused_early(client):
+    def parts():
+        for i in range(1600):
+            yield _part(f"f{i}", b"x" * 65_000)
+
+    r, _ = _chunked_post(client, parts)
+    assert r.status_code == 413, r.text
+    assert r.json()["error"]["code"] == "too_many_parts"
+
+
+def test_chunked_upload_with_1600_unknown_file_parts_refused_early(client):
+    def parts():
+        for i in range(1600):
+            yield _part(f"file{i}", b"x" * 1000, filename=f"f{i}.bin")
+
+    r, _ = _chunked_post(client, parts)
+    assert r.status_code == 422, r.text
+    assert "unexpected file part 'file0'" in r.json()["error"]["message"]
+
+
+def test_chunked_upload_over_the_total_limit_refused(client, sim):
+    """Within the part count, each text field within its limit: the body's total still counts."""
+    from tests.service.conftest import MAX_UPLOAD
+
+    def parts():
+        yield _part("scan", b"ply\n" + b"x" * (MAX_UPLOAD - 10), filename="s.ply")
+        yield _part("markers", b"x" * 1_000_000, filename="m.csv")
+        for i in range(13):
+            yield _part(f"t{i}", b"x" * 65_000)
+        yield _part("scan", b"x" * 2_000_000, filename="again.ply")  # a repeated field
+
+    r, _ = _chunked_post(client, parts)
+    assert r.status_code == 413, r.text
+    assert r.json()["error"]["code"] == "upload_too_large"
+
+
+def test_upload_filename_sanitised(client, sim):
+    def parts():
+        yield _part("scan", sim.scan.read_bytes(), filename="../../evil\x00na\x01me\x7f.ply")
+        yield _part("markers", sim.markers.read_bytes(), filename="m.csv")
+
+    r, _ = _chunked_post(client, parts)
+    assert r.status_code == 201, r.text
+    assert r.json()["filename"] == "evilname.ply"
