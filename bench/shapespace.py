@@ -30,7 +30,6 @@ import numpy as np
 
 from core.measure import MEASUREMENTS, measure
 from core.shapespace import (
-    OutOfRangeError,
     ShapeModel,
     body_height,
     build_model,
@@ -152,9 +151,7 @@ def editing(model: ShapeModel, fits: Path, *, n: int = 20, delta_kg: float = 10.
         for i in ids:
             V = bodies[i]
             w0 = model.weight_kg(V, sex)
-            try:
-                model.space(sex).features.check_value("weight_kg", w0 + delta_kg)
-            except OutOfRangeError:
+            if not model.space(sex).features.in_training_range({"weight_kg": w0 + delta_kg}):
                 skipped += 1
                 continue
             for key, keep in (("kept", None), ("paper", ())):

@@ -73,14 +73,15 @@ TARGET = {"p50_ms": 15.0, "p99_ms": 50.0, "rps": 300.0}
 
 
 def body_pool(n: int, seed: int = 0) -> tuple[list[dict], dict[str, int]]:
-    """``n`` distinct, valid synthesis requests drawn within the default model's ranges."""
+    """``n`` distinct, valid synthesis requests drawn within the default model's training
+    ranges (no extrapolation)."""
     from core.shapespace import default_model
     from core.shapespace.errors import OutOfRangeError
 
     m = default_model()
     rng = np.random.default_rng(seed)
     ranges = {
-        s: {k: v["range"] for k, v in m.describe()["spaces"][s]["features"].items()}
+        s: {k: v["training_range"] for k, v in m.describe()["spaces"][s]["features"].items()}
         for s in ("female", "male")
     }
     out: list[dict] = []
@@ -101,6 +102,9 @@ def body_pool(n: int, seed: int = 0) -> tuple[list[dict], dict[str, int]]:
         try:
             m.synthesize(sex, feats, seed=body.get("seed"))
         except OutOfRangeError:
+            kinds["rejected draws"] += 1
+            continue
+        if m.range_warnings(sex, feats):  # extrapolated: not the common request
             kinds["rejected draws"] += 1
             continue
         out.append(body)

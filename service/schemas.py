@@ -211,7 +211,13 @@ Sex = Literal["female", "male"]
 
 
 class FeatureRange(BaseModel):
-    range: list[float] = Field(description="[low, high] supported by the model")
+    range: list[float] = Field(
+        description="[low, high] accepted by the model (beyond: 422 out_of_range)"
+    )
+    training_range: list[float] = Field(
+        description="[low, high] covered by its training bodies (beyond, up to `range`: the "
+        "body is extrapolated and the answer carries a warning)"
+    )
     unit: str
 
 

@@ -6,13 +6,19 @@ of the shape space that is most likely and has those measurements.
 
 Method
 ------
-1. **Check** the input (:func:`check_measurements`): known names, finite positive numbers, each
-   inside a plausible range for the sex (the bundled ANSUR II held-in rows' [min, max] widened
-   to mean ± :data:`RANGE_SD` SD) and the set jointly plausible (Mahalanobis distance of the
-   given values from those rows outside the chi-square tail of probability :data:`TAIL`). Both
-   allow a :data:`SLACK` for the difference between ANSUR's tape and ``core.measure``'s
-   definitions, so the measurements of any likely model body pass: the checks catch wrong
-   units, typos and impossible bodies, not unusual ones.
+1. **Check** the input (:func:`check_measurements`): known names, finite positive numbers.
+   Stature and weight take the shape model's accepted limits (stature 1.0–2.5 m, weight
+   10–500 kg, BMI 10–80: :mod:`core.shapespace.features`), the same as synthesis, so every
+   ANSUR II subject and civilian extremes (1.40–2.05 m, BMI 15–55) pass, and values beyond the
+   model's training range get a warning in the report. Every other value must lie inside a
+   plausible range for the sex (the bundled ANSUR II held-in rows' [min, max] widened to mean ±
+   :data:`RANGE_SD` SD; when stature and weight are both given, instead of that, only the joint
+   check below, which then follows them) and the set must be jointly plausible: the Mahalanobis
+   distance of the other values from those rows, *given* stature and weight when they are
+   given (conditional Gaussian), outside the chi-square tail of probability :data:`TAIL` is
+   refused. Both allow a :data:`SLACK` for the difference between ANSUR's tape and
+   ``core.measure``'s definitions, so the measurements of any likely model body pass: the
+   checks catch wrong units, typos and impossible bodies, not unusual ones.
 2. **Conditional Gaussian**: the measurements the model's feature map knows (``stature`` ->
    ``height_m``, ``weightkg`` -> ``weight_kg`` and the map's own measurements, e.g. chest, waist
    and buttock circumferences in the default model) give the most likely PCA weights as in
@@ -49,6 +55,7 @@ import numpy as np
 from core.errors import MeasurementError
 from core.measure import MEASUREMENTS, measure
 from core.shapespace import OutOfRangeError, ShapeModel, default_model
+from core.shapespace.features import BMI_LIMITS, LIMITS
 from core.shapespace.model import MAX_SD
 from core.template import load_template
 
@@ -182,7 +189,11 @@ def _ansur_stats(sex: str) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.
 
 
 def plausible_range(sex: str, name: str) -> tuple[float, float]:
-    """[low, high] accepted for measurement ``name`` of ``sex`` (metres; ``weightkg`` kg)."""
+    """[low, high] accepted for measurement ``name`` of ``sex`` (metres; ``weightkg`` kg):
+    the shape model's accepted limits for ``stature`` and ``weightkg``, else ANSUR II ±
+    :data:`RANGE_SD` SD."""
+    if name in FEATURE_NAMES:
+        return LIMITS[FEATURE_NAMES[name]]
     names, mu, C, mm = _ansur_stats(sex)
     if name not in names:
         return (0.0, math.inf)
@@ -259,10 +270,15 @@ def check_measurements(
                         f"({x / f:g} m?)",
                         field=n, value=x,
                     )  # fmt: skip
-        if not lo <= x <= hi:
+        joint = n not in FEATURE_NAMES and all(k in measurements for k in FEATURE_NAMES)
+        if not lo <= x <= hi and not joint:
+            why = (
+                "the shape model's accepted limits" if n in FEATURE_NAMES
+                else f"ANSUR II ± {RANGE_SD:g} SD"
+            )  # fmt: skip
             raise OutOfRangeError(
                 f"{n}={_fmt(n, x)} is outside the plausible range {_fmt(n, lo)}–{_fmt(n, hi)} "
-                f"for {sex} bodies (ANSUR II ± {RANGE_SD:g} SD)",
+                f"for {sex} bodies ({why})",
                 feature=n, value=x, supported=[lo, hi],
             )  # fmt: skip
         out[n] = x
@@ -287,24 +303,42 @@ def _feature_values(
 
 
 def _check_combination(sex: str, values: dict[str, float]) -> None:
+    """BMI of stature and weight within :data:`BMI_LIMITS`; the other values jointly
+    plausible given them (see the module)."""
     from scipy.stats import chi2
 
-    if len(values) < 2:
+    if "stature" in values and "weightkg" in values:
+        h, w = values["stature"], values["weightkg"]
+        lo, hi = BMI_LIMITS
+        if not lo <= w / h**2 <= hi:
+            raise OutOfRangeError(
+                f"weightkg={w:g} kg at stature={h:g} m is a body-mass index of {w / h**2:.1f} "
+                f"kg/m², outside the supported range {lo:g}–{hi:g} kg/m² (weight {lo * h * h:.1f}–"
+                f"{hi * h * h:.1f} kg at that stature)",
+                feature="weightkg", value=w, supported=[lo * h * h, hi * h * h],
+            )  # fmt: skip
+    known = [n for n in FEATURE_NAMES if n in values]
+    rest = [n for n in values if n not in FEATURE_NAMES]
+    if not rest or len(values) < 2:
         return
     names, mu, C, _ = _ansur_stats(sex)
-    idx = [names.index(n) for n in values]
-    x = np.array(list(values.values())) - mu[idx]
-    S = C[np.ix_(idx, idx)]
+    ir, ik = [names.index(n) for n in rest], [names.index(n) for n in known]
+    x = np.array([values[n] for n in rest]) - mu[ir]
+    S = C[np.ix_(ir, ir)]
+    if ik:  # conditional Gaussian of the others given stature and/or weight
+        G = C[np.ix_(ir, ik)] @ np.linalg.inv(C[np.ix_(ik, ik)])
+        x = x - G @ (np.array([values[n] for n in known]) - mu[ik])
+        S = S - G @ C[np.ix_(ik, ir)]
     P = np.linalg.inv(S)
     d2 = float(x @ P @ x)
-    limit = float(chi2.isf(TAIL, len(idx)))
+    limit = float(chi2.isf(TAIL, len(ir)))
     if d2 <= limit:
         return
     # the value least like the others: largest standardised conditional residual
     g = P @ x
     z = g / np.sqrt(np.diag(P))
     i = int(np.argmax(np.abs(z)))
-    n = list(values)[i]
+    n = rest[i]
     expect = values[n] - g[i] / P[i, i]
     sd = 1.0 / np.sqrt(P[i, i])
     raise OutOfRangeError(
@@ -406,6 +440,7 @@ def body_from_measurements(
     # conditional Gaussian on the measurements the feature map knows (tape values, as trained)
     feats, report.feature_map = _feature_values(model, sex, given)
     w = fm.weights(feats) if feats else fm.mean[fm.f :].copy()
+    report.warnings.extend(model.range_warnings(sex, feats))
     report.notes.append(
         "conditional Gaussian of the feature map on "
         + (", ".join(report.feature_map) if feats else "nothing (the mean body)")

@@ -80,15 +80,12 @@ def stature_weight(d: dict[str, np.ndarray], i: int) -> dict[str, float]:
 
 
 def rows_in_range(fmap, d: dict[str, np.ndarray], rows: np.ndarray | None = None) -> np.ndarray:
-    """Indices (of ``rows``, default all) whose stature and weight a feature map accepts
-    (``fmap.weights`` raises ``ValueError`` outside its supported ranges)."""
+    """Indices (of ``rows``, default all) whose stature and weight lie inside a feature map's
+    training range (``fmap.in_training_range``: no extrapolation warning)."""
     ok = []
     for i in np.arange(len(d["stature"])) if rows is None else rows:
-        try:
-            fmap.weights(stature_weight(d, int(i)))
-        except ValueError:
-            continue
-        ok.append(int(i))
+        if fmap.in_training_range(stature_weight(d, int(i))):
+            ok.append(int(i))
     return np.array(ok, dtype=int)
 
 

@@ -7,6 +7,21 @@ they are -- and the encoded features ``f`` and the PCA weights ``w`` of the trai
 modelled jointly as a Gaussian. Its regression ``w = [f, 1] @ M`` is the paper's least-squares
 map; for a *partial* feature vector the most likely body given the known features is the
 conditional mean of the same Gaussian (which equals the map when every feature is given).
+
+Ranges. Each feature has a **training range** (:attr:`FeatureMap.ranges`: the training bodies'
+[min, max] widened to mean ± :data:`RANGE_SD` SD; for ``age`` the adult ages of the training
+subjects) and, wider, the **accepted limits** (:meth:`FeatureMap.limits`): what is physically
+meaningful for an adult -- stature 1.0–2.5 m, weight 10–500 kg, BMI 10–80 (given or most likely
+stature), age 17–90 years, measurements the training range widened by half its width. Values
+inside the limits but outside the training range, or a combination farther than
+:data:`MAX_MAHALANOBIS` from the training bodies, are *extrapolated*: accepted, with a warning
+(:meth:`FeatureMap.range_warnings`). Only values outside the limits (and non-finite ones) raise
+:class:`OutOfRangeError`. Why these limits: every ANSUR II subject (stature 1.41–1.99 m, 36–140 kg,
+BMI 15–44) and civilian extremes (stature 1.40–2.05 m, BMI 15–55) lie inside; a stature under
+1 m or over 2.5 m, or a BMI under 10 or over 80, is not an adult body (the tallest and the most
+underweight people on record are at the edge of these). Ages: 17 is the youngest ANSUR II subject
+(the model has no children's proportions), 90 the oldest age adult anthropometric surveys tabulate;
+the age effect is extrapolated linearly beyond the training subjects' 58 years (with a warning).
 """
 
 from __future__ import annotations
@@ -24,8 +39,20 @@ UNITS = {"height_m": "m", "weight_kg": "kg", "age": "years", "male": "0/1"}
 #: The range is the training bodies' [min, max] widened to mean ± this many SDs when wider.
 RANGE_SD = 3.5
 #: A feature combination farther than this Mahalanobis distance from the training bodies
-#: (given the features supplied) is out of range.
+#: (given the features supplied) is beyond the training range (a warning, not an error).
 MAX_MAHALANOBIS = 5.0
+#: Accepted limits (user units) of these features, whatever the training data: see the module.
+LIMITS = {"height_m": (1.0, 2.5), "weight_kg": (10.0, 500.0), "age": (17.0, 90.0)}
+#: Accepted body-mass index (kg/m²) with the given (else the most likely) stature.
+BMI_LIMITS = (10.0, 80.0)
+#: Measurement features are accepted up to this fraction of their training range's width beyond it.
+MEASUREMENT_MARGIN = 0.5
+#: Training range of ``age``: the training subjects' ages (ANSUR II: 17–58), not mean ± SD.
+AGE_TRAINING = (17.0, 58.0)
+
+
+def _fmt(name: str, value: float) -> str:
+    return f"{value:.3g} {UNITS.get(name, 'm')}"
 
 
 def encode(name: str, value: float | np.ndarray) -> np.ndarray:
@@ -92,18 +119,90 @@ class FeatureMap:
             vals.append(float(encode(name, v)))
         return idx, np.array(vals)
 
-    def check_value(self, name: str, value: float) -> None:
-        """Raise :class:`OutOfRangeError` when ``value`` is outside feature ``name``'s range."""
+    def training_range(self, name: str) -> tuple[float, float]:
+        """(low, high) of feature ``name`` covered by the training bodies (user units)."""
         lo, hi = self.ranges.get(name, (-np.inf, np.inf))
+        if name == "age":
+            return max(lo, AGE_TRAINING[0]), min(hi, AGE_TRAINING[1])
+        return lo, hi
+
+    def limits(self, name: str) -> tuple[float, float]:
+        """(low, high) accepted for feature ``name`` (user units): :data:`LIMITS`, else the
+        training range widened by :data:`MEASUREMENT_MARGIN` of its width (``male``: 0–1)."""
+        if name in LIMITS:
+            return LIMITS[name]
+        lo, hi = self.ranges.get(name, (-np.inf, np.inf))
+        if name == "male":
+            return lo, hi
+        pad = MEASUREMENT_MARGIN * (hi - lo)
+        return max(lo - pad, 0.0), hi + pad
+
+    def check_value(self, name: str, value: float) -> None:
+        """Raise :class:`OutOfRangeError` when ``value`` is outside feature ``name``'s accepted
+        limits (:meth:`limits`); the message gives them and the training range."""
+        lo, hi = self.limits(name)
         if not lo <= value <= hi:
             unit = UNITS.get(name, "m")
+            tlo, thi = self.training_range(name)
             raise OutOfRangeError(
                 f"{name}={value:g} {unit} is outside the supported range "
-                f"{lo:.3g}–{hi:.3g} {unit} of this model",
+                f"{lo:.3g}–{hi:.3g} {unit} of this model (its training range is "
+                f"{tlo:.3g}–{thi:.3g} {unit}; values between are extrapolated, with a warning)",
                 feature=name,
                 value=value,
                 supported=[lo, hi],
+                training_range=[tlo, thi],
             )
+
+    def check_bmi(self, features: dict[str, float]) -> None:
+        """Raise :class:`OutOfRangeError` when the body-mass index of ``weight_kg`` with the
+        given ``height_m`` (else the most likely stature for the other features) is outside
+        :data:`BMI_LIMITS`."""
+        if "weight_kg" not in features or "height_m" not in self.names:
+            return
+        given = "height_m" in features
+        h = float(features["height_m"]) if given else self.conditional(features)["height_m"]
+        w = float(features["weight_kg"])
+        bmi = w / (h * h)
+        lo, hi = BMI_LIMITS
+        if not lo <= bmi <= hi:
+            at = f"height_m={h:.3g} m" if given else f"the most likely stature {h:.3g} m"
+            raise OutOfRangeError(
+                f"weight_kg={w:g} kg at {at} is a body-mass index of {bmi:.1f} kg/m², outside "
+                f"the supported range {lo:g}–{hi:g} kg/m² (weight {lo * h * h:.1f}–"
+                f"{hi * h * h:.1f} kg at that stature)",
+                feature="weight_kg", value=w, bmi=bmi, supported=[lo * h * h, hi * h * h],
+            )  # fmt: skip
+
+    def range_warnings(self, features: dict[str, float]) -> list[str]:
+        """Warnings for values (already within the limits) that the model extrapolates: a
+        feature outside its training range, or a combination farther than
+        :data:`MAX_MAHALANOBIS` from the training bodies. Empty inside the training range."""
+        out = []
+        for name, value in features.items():
+            if name not in self.names:
+                continue
+            lo, hi = self.training_range(name)
+            v = float(value)
+            if not lo <= v <= hi:
+                out.append(
+                    f"{name}={_fmt(name, v)} is beyond the model's training range "
+                    f"{lo:.3g}–{hi:.3g} {UNITS.get(name, 'm')}: the body is extrapolated"
+                )
+        if len(features) > 1:
+            d = self.mahalanobis(features)
+            if d > MAX_MAHALANOBIS:
+                out.append(
+                    "this combination of "
+                    + ", ".join(f"{k}={float(v):g}" for k, v in features.items())
+                    + " is unlike the model's training bodies (Mahalanobis distance "
+                    f"{d:.1f} > {MAX_MAHALANOBIS:g}): the body is extrapolated"
+                )
+        return out
+
+    def in_training_range(self, features: dict[str, float]) -> bool:
+        """Whether :meth:`range_warnings` has nothing to say about ``features``."""
+        return not self.range_warnings(features)
 
     def mahalanobis(self, features: dict[str, float]) -> float:
         """Mahalanobis distance of (some) encoded features from the training bodies'."""
@@ -123,8 +222,9 @@ class FeatureMap:
         ----------
         features : name -> value in user units (``height_m`` m, ``weight_kg`` kg, ``age``
             years, measurements m). Missing features are marginalised (conditional Gaussian).
-        check : raise :class:`OutOfRangeError` for values outside the supported ranges or an
-            implausible combination.
+        check : raise :class:`OutOfRangeError` for values outside the accepted limits
+            (:meth:`limits`, :meth:`check_bmi`); values the model extrapolates pass (see
+            :meth:`range_warnings`).
 
         Returns
         -------
@@ -133,16 +233,8 @@ class FeatureMap:
         idx, f = self._encode_dict(features, check=check)
         if not idx:
             return self.mean[self.f :].copy()
-        if check and len(idx) > 1:
-            d = self.mahalanobis(features)
-            if d > MAX_MAHALANOBIS:
-                raise OutOfRangeError(
-                    "this combination of "
-                    + ", ".join(f"{k}={float(v):g}" for k, v in features.items())
-                    + f" is unlike any body in the training data (Mahalanobis distance {d:.1f}"
-                    f" > {MAX_MAHALANOBIS:g})",
-                    mahalanobis=d,
-                )
+        if check:
+            self.check_bmi(features)
         if len(idx) == self.f:
             order = np.argsort(idx)
             return np.append(f[order], 1.0) @ self.M
@@ -150,6 +242,17 @@ class FeatureMap:
         S_gg = self.cov[np.ix_(idx, idx)]
         S_wg = self.cov[np.ix_(w_idx, idx)]
         return self.mean[w_idx] + S_wg @ np.linalg.solve(S_gg, f - self.mean[idx])
+
+    def conditional(self, features: dict[str, float]) -> dict[str, float]:
+        """Most likely value of every feature given some of them (conditional mean of the
+        encoded features; user units). Unchecked."""
+        idx, f = self._encode_dict(features, check=False)
+        mu = self.mean[: self.f].copy()
+        if idx:
+            S = self.cov[: self.f, : self.f]
+            mu = mu + S[:, idx] @ np.linalg.solve(S[np.ix_(idx, idx)], f - mu[idx])
+            mu[idx] = f
+        return {n: float(decode(n, v)) for n, v in zip(self.names, mu, strict=True)}
 
     def features(self, weights: np.ndarray) -> dict[str, float]:
         """Most likely features of a body with PCA weights ``weights`` (conditional mean).

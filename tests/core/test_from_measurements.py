@@ -19,7 +19,6 @@ from core.matching.from_measurements import (
     body_from_measurements,
     calibration,
     check_measurements,
-    plausible_range,
 )
 from core.measure import MEASUREMENTS, measure
 from core.shapespace import OutOfRangeError, default_model
@@ -126,12 +125,13 @@ def test_tape_values_of_a_held_out_subject():
         ({"stature": 1650}, MeasurementError, "millimetres"),
         ({"waistcircumference": 85}, MeasurementError, "centimetres"),
         ({"stature": 3.0}, OutOfRangeError, "plausible range"),
-        ({"weightkg": 400}, OutOfRangeError, "plausible range"),
+        ({"weightkg": 600}, OutOfRangeError, "plausible range"),
+        ({"weightkg": 400}, OutOfRangeError, "body-mass index of 8"),
         ({"stature": 1.55, "crotchheight": 1.0}, OutOfRangeError, "least consistent is"),
     ],
     ids=[
         "empty", "alias", "unknown", "nan", "inf", "negative", "zero", "string", "bool", "mm",
-        "cm", "too-tall", "too-heavy", "inconsistent",
+        "cm", "too-tall", "too-heavy", "bmi", "inconsistent",
     ],
 )  # fmt: skip
 def test_bad_measurements(values, error, match):
@@ -143,11 +143,13 @@ def test_bad_measurements(values, error, match):
 def test_bad_sex_and_model_range():
     with pytest.raises(MeasurementError, match="sex"):
         check_measurements("other", {"stature": 1.7})
-    # plausible for ANSUR II, but heavier than the model's female weight range
-    hi = plausible_range("female", "weightkg")[1]
+    # heavier than the model's female training range: accepted (the model extrapolates) ...
     fm_hi = default_model().space("female").features.ranges["weight_kg"][1]
-    assert hi > fm_hi + 5
-    value = {"weightkg": fm_hi + 3}
-    check_measurements("female", value)  # without a model: only the ANSUR checks
-    with pytest.raises(OutOfRangeError, match="weight_kg"):
-        check_measurements("female", value, model=default_model())
+    value = {"stature": 1.70, "weightkg": fm_hi + 3}
+    check_measurements("female", value, model=default_model())
+    # ... while a BMI over 80 is refused by both checks, naming the weights that are accepted
+    for model in (None, default_model()):
+        with pytest.raises(OutOfRangeError, match=r"body-mass index of 83\.0.*10.*80") as e:
+            check_measurements("female", {"stature": 1.70, "weightkg": 240.0}, model=model)
+        lo, hi = e.value.details["supported"]
+        assert lo == pytest.approx(28.9) and hi == pytest.approx(231.2)
