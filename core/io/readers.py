@@ -25,7 +25,6 @@ Decisions
 from __future__ import annotations
 
 import io
-import itertools
 import os
 import re
 import zipfile
@@ -342,78 +341,135 @@ def _binary_element(
             )
         arr = np.frombuffer(data, dt, n, off) if n else np.zeros(0, dt)
         return {p.name: arr[f"p{i}"] for i, p in enumerate(el.props)}, off + need
-    # Elements with list properties: read runs of records sharing the same list lengths.
-    runs: list[tuple[tuple[int, ...], np.ndarray]] = []
-    done = 0
-    k = 1024
-    while done < n:
-        # read the list counts of the first record of this run
-        counts: list[int] = []
-        pos = off
-        for p in el.props:
-            if p.count_type is None:
-                pos += np.dtype(p.type).itemsize
-                continue
-            csz = np.dtype(p.count_type).itemsize
-            if pos + csz > len(data):
-                raise InputFormatError(
-                    f"{what}: binary PLY is truncated inside element '{el.name}' "
-                    f"(row {done:,} of {n:,}); the upload was cut short or the header count "
-                    "is wrong",
-                    element=el.name,
-                )
-            c = int(np.frombuffer(data, end + p.count_type, 1, pos)[0])
-            if c < 0 or c > 1_000_000:
-                raise InputFormatError(
-                    f"{what}: invalid list length {c} in element '{el.name}' row {done:,}; "
-                    "the file is corrupt",
-                    element=el.name,
-                )
-            counts.append(c)
-            pos += csz + c * np.dtype(p.type).itemsize
-        fields = []
-        ci = 0
-        for i, p in enumerate(el.props):
-            if p.count_type is None:
-                fields.append((f"p{i}", end + p.type))
-            else:
-                fields.append((f"c{i}", end + p.count_type))
-                if counts[ci]:
-                    fields.append((f"p{i}", end + p.type, (counts[ci],)))
-                ci += 1
-        dt = np.dtype(fields)
-        avail = (len(data) - off) // dt.itemsize
-        take = min(k, n - done, avail)
-        if take <= 0:
-            raise InputFormatError(
-                f"{what}: binary PLY is truncated inside element '{el.name}' "
-                f"(row {done:,} of {n:,}); the upload was cut short or the header count is wrong",
-                element=el.name,
-            )
-        rec = np.frombuffer(data, dt, take, off)
-        ok = np.ones(take, bool)
-        ci = 0
-        for i, p in enumerate(el.props):
-            if p.count_type is not None:
-                ok &= rec[f"c{i}"] == counts[ci]
-                ci += 1
-        run = take if ok.all() else int(np.argmin(ok))
-        runs.append((tuple(counts), rec[:run]))
-        done += run
-        off += run * dt.itemsize
-        k = min(max(16, 2 * run), 1 << 22)
+    # Elements with list properties: find every row's start (vectorised when all rows share the
+    # first row's list lengths, else one pass over the count bytes), then gather each property.
+    props = [
+        (np.dtype(end + p.type), None if p.count_type is None else np.dtype(end + p.count_type))
+        for p in el.props
+    ]
+    starts = _uniform_row_starts(data, off, n, props)
+    if starts is None:
+        starts = _row_starts(data, off, n, props, el.name, what)
+    buf = np.frombuffer(data, np.uint8)
     out: dict[str, Any] = {}
-    for i, p in enumerate(el.props):
-        if p.count_type is None:
-            out[p.name] = np.concatenate([r[f"p{i}"] for _, r in runs]) if runs else np.zeros(0)
-        else:
-            li = sum(1 for q in el.props[:i] if q.count_type is not None)
-            lst = []
-            for cnt, r in runs:
-                c = cnt[li]
-                lst.append((c, r[f"p{i}"] if c else np.zeros((len(r), 0))))
-            out[p.name] = lst
-    return out, off
+    pos = starts
+    for p, (vt, ct) in zip(el.props, props, strict=True):
+        if ct is None:
+            out[p.name] = _gather(buf, pos, vt)
+            pos = pos + vt.itemsize
+            continue
+        counts = _gather(buf, pos, ct).astype(np.int64)
+        first = pos + ct.itemsize
+        flat_pos = np.repeat(first, counts) + vt.itemsize * _ranks(counts)
+        out[p.name] = (counts, _gather(buf, flat_pos, vt))
+        pos = first + counts * vt.itemsize
+    end_off = int(pos[-1]) if n else off
+    return out, end_off
+
+
+def _gather(buf: np.ndarray, pos: np.ndarray, dt: np.dtype) -> np.ndarray:
+    """Values of type ``dt`` at byte offsets ``pos`` of ``buf`` (uint8) -> (len(pos),)."""
+    if dt.itemsize == 1:
+        return buf[pos].view(dt)
+    idx = pos[:, None] + np.arange(dt.itemsize)
+    return np.ascontiguousarray(buf[idx]).view(dt).reshape(-1)
+
+
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """0..c-1 for each row of a ragged array with row lengths ``counts``, concatenated."""
+    total = int(counts.sum())
+    first = np.cumsum(counts) - counts
+    return np.arange(total, dtype=np.int64) - np.repeat(first, counts)
+
+
+_MAX_LIST = 1_000_000
+
+
+def _row_layout(data, off: int, props) -> tuple[list[int], int] | None:
+    """List lengths and byte size of the row at ``off`` (None when past the end)."""
+    counts = []
+    pos = off
+    for vt, ct in props:
+        if ct is None:
+            pos += vt.itemsize
+            continue
+        if pos + ct.itemsize > len(data):
+            return None
+        c = int(np.frombuffer(data, ct, 1, pos)[0])
+        counts.append(c)
+        pos += ct.itemsize + max(c, 0) * vt.itemsize
+    return counts, pos - off
+
+
+def _uniform_row_starts(data, off: int, n: int, props) -> np.ndarray | None:
+    """Row starts if every row has the first row's list lengths (checked), else None."""
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = _row_layout(data, off, props)
+    if first is None or any(c < 0 or c > _MAX_LIST for c in first[0]):
+        return None
+    counts, size = first
+    if off + n * size > len(data):
+        return None
+    starts = off + size * np.arange(n, dtype=np.int64)
+    buf = np.frombuffer(data, np.uint8)
+    pos = starts
+    li = 0
+    for vt, ct in props:
+        if ct is None:
+            pos = pos + vt.itemsize
+            continue
+        if not np.all(_gather(buf, pos, ct) == counts[li]):
+            return None
+        pos = pos + ct.itemsize + counts[li] * vt.itemsize
+        li += 1
+    return starts
+
+
+def _row_starts(data, off: int, n: int, props, name: str, what: str) -> np.ndarray:
+    """Row starts of an element whose rows differ in list lengths: one pass over the counts
+    (the one sequential dependency of the format; ~0.1 us a row for the usual faces)."""
+    starts = np.empty(n, dtype=np.int64)
+    size = len(data)
+    lists = [i for i, (_, ct) in enumerate(props) if ct is not None]
+    pre = sum(vt.itemsize for vt, _ in props[: lists[0]])
+    post = sum(vt.itemsize for vt, _ in props[lists[0] + 1 :])
+    vt0, ct0 = props[lists[0]]
+    pos = off
+    if len(lists) == 1 and ct0.itemsize == 1 and ct0.kind == "u":  # the usual: uchar counts
+        mv = memoryview(data).cast("B") if isinstance(data, memoryview) else memoryview(data)
+        fixed, isz = pre + 1 + post, vt0.itemsize
+        found = []
+        add = found.append
+        try:
+            for _ in range(n):
+                add(pos)
+                pos += fixed + mv[pos + pre] * isz
+        except IndexError:
+            pos = size + 1
+        if pos <= size:
+            starts = np.array(found, dtype=np.int64)
+    else:
+        for i in range(n):
+            starts[i] = pos
+            lay = _row_layout(data, pos, props)
+            if lay is None:
+                pos = size + 1
+                break
+            if any(c < 0 or c > _MAX_LIST for c in lay[0]):
+                raise InputFormatError(
+                    f"{what}: invalid list length in element '{name}' row {i:,}; "
+                    "the file is corrupt",
+                    element=name,
+                )
+            pos += lay[1]
+    if pos > size:
+        raise InputFormatError(
+            f"{what}: binary PLY is truncated inside element '{name}' ({n:,} rows declared); "
+            "the upload was cut short or the header count is wrong",
+            element=name,
+        )
+    return starts
 
 
 def _ascii_element(
@@ -445,9 +501,8 @@ def _ascii_element(
         for j, p in enumerate(el.props):
             out[p.name] = _as_type(tab[:, j], p.type)
         return out, start + n
-    # list elements: group rows by their token count (rows with equal layout share a table)
+    # list elements: each row's list lengths from its tokens, then one gather per property
     offs = np.concatenate([[0], np.cumsum(ntok)])
-    layout = np.zeros(n, dtype=np.int64)
     per_prop_counts: dict[int, np.ndarray] = {}
     pos = offs[:-1].copy()
     for i, p in enumerate(el.props):
@@ -466,7 +521,6 @@ def _ascii_element(
         c = c.astype(np.int64)
         per_prop_counts[i] = c
         pos = pos + 1 + c
-        layout = layout * 1_000_003 + c
     bad = np.flatnonzero(pos != offs[1:])
     if len(bad):
         i = int(bad[0])
@@ -475,23 +529,16 @@ def _ascii_element(
             f"list lengths: {chunk[i].decode('latin-1').strip()[:80]!r}",
             element=el.name,
         )
-    runs_idx = _runs(layout)
-    for p in el.props:
-        out[p.name] = [] if p.count_type is not None else np.zeros(n)
-    for a, b in runs_idx:
-        rows = np.arange(a, b)
-        col = offs[a:b].copy()
-        for i, p in enumerate(el.props):
-            if p.count_type is None:
-                out[p.name][a:b] = vals[col]
-                col = col + 1
-            else:
-                c = int(per_prop_counts[i][a])
-                idx = col[:, None] + 1 + np.arange(c)[None, :]
-                out[p.name].append(
-                    (c, _as_type(vals[idx], p.type) if c else np.zeros((len(rows), 0)))
-                )
-                col = col + 1 + c
+    col = offs[:-1].copy()
+    for i, p in enumerate(el.props):
+        if p.count_type is None:
+            out[p.name] = vals[col]
+            col = col + 1
+        else:
+            c = per_prop_counts[i]
+            flat = vals[np.repeat(col + 1, c) + _ranks(c)]
+            out[p.name] = (c, _as_type(flat, p.type))
+            col = col + 1 + c
     return out, start + n
 
 
@@ -506,32 +553,26 @@ def _as_type(a: np.ndarray, t: str) -> np.ndarray:
     return a.astype(np.int64)
 
 
-def _runs(key: np.ndarray) -> list[tuple[int, int]]:
-    if len(key) == 0:
-        return []
-    cut = np.flatnonzero(key[1:] != key[:-1]) + 1
-    edges = np.concatenate([[0], cut, [len(key)]])
-    return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
+def _fan(counts: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Fan-triangulate polygons given as a ragged array -> (m, 3) int64, in file order.
 
-
-def _fan(runs: list[tuple[int, np.ndarray]]) -> np.ndarray:
-    """Fan-triangulate runs of polygons [(k, (r, k) indices)] -> (m, 3) int64, file order."""
-    tris = []
-    for k, idx in runs:
-        if k < 3 or len(idx) == 0:
-            continue
-        idx = np.asarray(idx)
-        if k == 3:
-            tris.append(idx.astype(np.int64, copy=False).reshape(-1, 3))
-            continue
-        j = np.arange(1, k - 1)
-        t = np.stack(
-            [np.broadcast_to(idx[:, :1], (len(idx), k - 2)), idx[:, j], idx[:, j + 1]], axis=-1
-        )
-        tris.append(t.reshape(-1, 3).astype(np.int64))
-    if not tris:
-        return np.zeros((0, 3), dtype=np.int64)
-    return np.concatenate(tris)
+    ``counts`` (r,) corners per polygon, ``flat`` (sum(counts),) their vertex indices; polygon
+    ``(v0, ..., vk-1)`` gives ``(v0, vj, vj+1)`` for j = 1..k-2; polygons with < 3 corners are
+    dropped. Vectorised: mixed triangles, quads and n-gons cost what uniform ones do.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    flat = np.asarray(flat)
+    if len(counts) and np.all(counts == 3):
+        return flat.astype(np.int64, copy=False).reshape(-1, 3)
+    first = np.cumsum(counts) - counts
+    ntri = np.maximum(counts - 2, 0)
+    base = np.repeat(first, ntri)
+    j = _ranks(ntri) + 1
+    F = np.empty((len(base), 3), dtype=np.int64)
+    F[:, 0] = flat[base]
+    F[:, 1] = flat[base + j]
+    F[:, 2] = flat[base + j + 1]
+    return F
 
 
 def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
@@ -589,16 +630,15 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
     face = parsed.get("face")
     if face is not None and elements and any(e.name == "face" and e.count for e in elements):
         key = next((k for k in ("vertex_indices", "vertex_index") if k in face), None)
-        if key is None or not isinstance(face[key], list):
+        if key is None or not isinstance(face[key], tuple):
             raise InputFormatError(
                 f"{what}: PLY face element has no list property 'vertex_indices' "
                 "(or 'vertex_index')"
             )
-        runs = face[key]
-        for _, idx in runs:
-            if np.asarray(idx).dtype.kind == "f" and np.any(idx != np.round(idx)):
-                raise InputFormatError(f"{what}: PLY face indices must be integers")
-        F = _fan(runs)
+        counts, flat = face[key]
+        if flat.dtype.kind == "f" and np.any(flat != np.round(flat)):
+            raise InputFormatError(f"{what}: PLY face indices must be integers")
+        F = _fan(counts, flat)
     return _finish(RawMesh(V=V, F=F, normals=normals, confidence=conf, colors=colors), what)
 
 
@@ -690,13 +730,7 @@ def _read_obj(data: bytes, what: str, max_vertices: int | None, max_faces: int |
                         chk = normals[vi]
                         if not np.allclose(chk, vn[ni]) or len(np.unique(vi)) != nv:
                             normals = None
-        offs = np.concatenate([[0], np.cumsum(ftok)])
-        runs = []
-        for a, b in _runs(ftok):
-            k = int(ftok[a])
-            rows = offs[a:b, None] + np.arange(k)[None, :]
-            runs.append((k, vi[rows]))
-        F = _fan(runs)
+        F = _fan(ftok, vi)
     return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors), what)
 
 

@@ -365,3 +365,50 @@ def test_corrupted_files_only_raise_input_format_error(tpl):
         for f in (fmt, None):
             with contextlib.suppress(InputFormatError):
                 read_mesh(bytes(b), f)
+
+
+def test_mixed_polygons_fan_triangulated_in_file_order_in_every_format():
+    """Faces alternating triangles / quads / pentagons (issue 11: parsed face by face before)."""
+    import time
+
+    from bench.mixed_faces import mixed_polygons, obj, ply_ascii, ply_binary
+
+    V = np.random.default_rng(1).normal(size=(5_000, 3)).astype(np.float32).astype(np.float64)
+    polys = mixed_polygons(20_000, len(V))
+    want = np.array([(p[0], p[j], p[j + 1]) for p in polys for j in range(1, len(p) - 1)])
+    for data, fmt in ((ply_binary(V, polys), "ply"), (ply_ascii(V, polys), "ply"),
+                      (obj(V, polys), "obj")):  # fmt: skip
+        t = time.process_time()
+        r = read_mesh(data, fmt)
+        assert time.process_time() - t < 1.0  # was 0.4-0.45 s per 20,000 faces
+        np.testing.assert_array_equal(r.F, want)
+        np.testing.assert_allclose(r.V, V, atol=1e-5)
+
+
+def test_binary_ply_list_rows_truncated_midway():
+    from bench.mixed_faces import mixed_polygons, ply_binary
+
+    V = np.zeros((10, 3))
+    data = ply_binary(V, mixed_polygons(50, 10))
+    for cut in (1, 7, 30):
+        with pytest.raises(InputFormatError, match="truncated"):
+            read_mesh(data[:-cut], "ply")
+
+
+def test_binary_ply_faces_with_two_lists_and_a_scalar():
+    """Rows whose sizes depend on two list lengths (the general, non-uchar path)."""
+    head = (
+        b"ply\nformat binary_big_endian 1.0\nelement vertex 6\n"
+        b"property double x\nproperty double y\nproperty double z\n"
+        b"element face 3\nproperty ushort flags\nproperty list int uint vertex_indices\n"
+        b"property list uchar float texcoord\nend_header\n"
+    )
+    V = np.arange(18, dtype=float).reshape(6, 3)
+    rows = b""
+    for k, idx in ((3, [0, 1, 2]), (4, [2, 3, 4, 5]), (5, [0, 1, 2, 3, 4])):
+        rows += np.array([7], ">u2").tobytes() + np.array([k], ">i4").tobytes()
+        rows += np.array(idx, ">u4").tobytes() + bytes([2 * k]) + np.zeros(2 * k, ">f4").tobytes()
+    r = read_mesh(head + V.astype(">f8").tobytes() + rows, "ply")
+    np.testing.assert_array_equal(
+        r.F, [[0, 1, 2], [2, 3, 4], [2, 4, 5], [0, 1, 2], [0, 2, 3], [0, 3, 4]]
+    )
