@@ -53,9 +53,14 @@ def _listen_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _serve_one(host: str, port: int, log_level: str) -> None:
-    """One API process of ``serve --workers N`` (a spawned child): its own listening socket."""
+def _serve_one(host: str, port: int, log_level: str, parent_pid: int) -> None:
+    """One API process of ``serve --workers N`` (a spawned child): its own listening socket;
+    stops (SIGTERM: a graceful shutdown) when the supervising process dies."""
     import uvicorn
+
+    from service.runtime import die_with_parent
+
+    die_with_parent(parent_pid, signal.SIGTERM)  # started from the main thread: pdeathsig holds
 
     config = uvicorn.Config(
         "service.app:app", host=host, port=port, log_level=log_level, proxy_headers=True
@@ -72,6 +77,7 @@ def _serve_processes(args: argparse.Namespace) -> int:
     the data folder (SQLite in WAL mode, the blob folder) and one of them runs the fits
     (:class:`service.jobs.EmbeddedRunner`)."""
     import multiprocessing
+    import os
 
     try:  # fail now, with a message, if the port is taken by a socket without SO_REUSEPORT
         _listen_socket(args.host, args.port).close()
@@ -83,7 +89,9 @@ def _serve_processes(args: argparse.Namespace) -> int:
 
     def new() -> multiprocessing.process.BaseProcess:
         p = ctx.Process(
-            target=_serve_one, args=(args.host, args.port, args.log_level), name="bodyspace-api"
+            target=_serve_one,
+            args=(args.host, args.port, args.log_level, os.getpid()),
+            name="bodyspace-api",
         )
         p.start()
         return p

@@ -16,7 +16,7 @@ import os
 import threading
 import time
 import uuid
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Protocol
 
@@ -49,9 +49,13 @@ class JobRunner(Protocol):
         """Stop accepting jobs."""
 
 
-def _pool_init() -> None:
+def _pool_init(parent_pid: int) -> None:
+    from service.runtime import die_with_parent
     from worker.jobs import warm_up
 
+    # A pool process dies with its API process (SIGKILL, OOM killer): no orphan keeps running
+    # (or storing) a fit that the next runner re-runs (issue 15).
+    die_with_parent(parent_pid)
     warm_up()
 
 
@@ -83,6 +87,10 @@ class EmbeddedRunner:
         self._stop = threading.Event()
         self._lock_fd: int | None = None
         self._started = False
+        # Every pool.submit (which starts pool processes on demand) runs in this one thread,
+        # alive as long as the runner: the parent-death signal of a pool process fires when
+        # the thread that started it exits (a request thread would kill it when idle).
+        self._spawner = ThreadPoolExecutor(1, thread_name_prefix="pool-spawner")
 
     @property
     def is_leader(self) -> bool:
@@ -94,6 +102,7 @@ class EmbeddedRunner:
             max_workers=max(1, self.settings.workers),
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_pool_init,
+            initargs=(os.getpid(),),
         )
 
     def _try_lead(self) -> bool:
@@ -181,7 +190,8 @@ class EmbeddedRunner:
                 raise RuntimeError("the embedded job runner is not started")
             if fit_id in self._pending:
                 return  # already in the pool
-            fut = self._pool.submit(_run, fit_id, f"emb.{uuid.uuid4().hex[:12]}")
+            task_id = f"emb.{uuid.uuid4().hex[:12]}"
+            fut = self._spawner.submit(self._pool.submit, _run, fit_id, task_id).result()
             self._pending[fit_id] = fut
             gen = self._generation
         fut.add_done_callback(lambda f, i=fit_id, g=gen: self._done(i, f, g))
@@ -229,6 +239,7 @@ class EmbeddedRunner:
         if self._lock_fd is not None:
             os.close(self._lock_fd)
             self._lock_fd = None
+        self._spawner.shutdown(wait=False)
 
 
 def worker_beat_prefix(settings: Settings) -> str:

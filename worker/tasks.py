@@ -78,6 +78,12 @@ def submit(fit_id: str) -> None:
 
 @signals.worker_process_init.connect
 def _child_init(**_: object) -> None:
+    from service.runtime import die_with_parent
+
+    # A pool process whose worker died exits (its job is recovered from the database once its
+    # heartbeat is stale). Watchdog only: billiard may start pool processes from a thread that
+    # does not live as long as the worker, which would fire a parent-death signal early.
+    die_with_parent(os.getppid(), pdeathsig=False, poll_s=1.0)
     # in the background: process start-up must stay short (worker_proc_alive_timeout)
     threading.Thread(target=jobs.warm_up, daemon=True, name="warm-up").start()
 
