@@ -1,0 +1,684 @@
+"""What scanner software delivers, made from a known body (seeded test material).
+
+Real booth and handheld scanners do not hand over our simulated raw range images: their software
+closes holes, fuses fingers and arms touching the torso, smooths, decimates, adds hair, cuts the
+soles flat or leaves a floor plate, and writes any units, up axis and facing. This module turns a
+template-order body (see :mod:`core.synth.realworld`) into such outputs; :func:`make_case` and
+:func:`benchmark_cases` assemble whole test cases with their truth.
+
+Decisions
+---------
+- **Closed meshes** (:func:`closed_mesh`): the body is voxelised by its winding number (rays along
+  +Z, union of overlapping parts, so LBS self-intersections become one solid), hands are inflated by
+  max(4 mm, 0.4 voxel) (a mitten: sub-voxel fingers stay solid) and closed morphologically with a
+  ball of 10–14 mm, at least two voxels (mitten hands, fused fingers), hair is added as solid
+  volume, the soles are cut flat (3–8 mm above the floor) or a floor plate (10 mm, at least two
+  voxels thick) reaching 8–15 cm around the feet is added, cavities are filled, and the surface is
+  extracted by marching cubes (scikit-image, BSD) on a signed distance field that is exact near the
+  original surface (distances to 1.5 mm surface samples) and an EDT distance where the volume was
+  edited, truncated at ±1.5 voxels and smoothed by a Gaussian of 0.5 voxel. Only the largest
+  component is kept (scanner software does), the winding is outward. Voxel 5–7 mm → 40–90 k
+  vertices; 10–14 mm → the 8–20 k of decimated booth-scanner meshes. Every edge is shared by exactly
+  two faces (tested).
+- **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
+  opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
+  back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``.
+- **Raw scans** come from :func:`core.synth.scanner.simulate_scan` of the off-model body
+  (6 views, 4 mm pitch, 1 mm noise). ``inward``: the faces (and normals) of both arms are wound
+  inward. ``clutter``: 2–5 stray blobs (spheres r 2–6 cm, 0.3–1.2 m from the body) and a ring of
+  floor points/triangles around the feet (r 0.25–0.6 m).
+- **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
+  uniformly by area on the true body surface with 0.5 mm noise and the soles removed
+  (``dense``).
+- **Frames**: units mm / cm / m, up axis any of ±X, ±Y, ±Z, facing any angle about the up axis, a
+  translation up to 0.3 m; the booth-like ``closed_lowres`` family stays mm, +Y up, floor 0.
+- **Markers** (:func:`other_convention_markers`): the 62 CAESAR landmarks or a 33-marker subset
+  (:data:`SUBSET_33`); each is moved 2–5 cm along the surface from our definition in a direction
+  fixed per convention (another team's habit, the same on every subject), plus 3 mm placement
+  noise; 0–2 left/right pairs swapped and 0–4 markers missing per case.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from core.geometry import MeshDistance
+from core.io.frame import rotation_for_up
+from core.synth.realworld import mesh_volume, off_model_body, posture
+from core.synth.scanner import ScanConfig, simulate_scan, vertex_normals
+from core.template import load_template
+
+UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
+UPS = ("+x", "-x", "+y", "-y", "+z", "-z")
+HAIR_STYLES = ("bun", "ponytail", "cap", "cap+bun")
+
+#: Case kinds: family name -> what it is.
+KINDS = {
+    "closed_lowres": "closed hole-filled mesh from booth software, 8-20 k vertices, mm, +Y up",
+    "closed_hair": "closed mesh with hair volume, 40-90 k vertices",
+    "closed_touching": "closed mesh, arms touching the torso (fused, mostly genus > 0)",
+    "closed_plate": "closed mesh standing on a floor plate",
+    "raw": "raw multi-view range scan (holes, duplicated overlaps)",
+    "raw_inward": "raw multi-view scan, both arms' faces wound inward",
+    "raw_clutter": "raw scan with stray blobs and floor points",
+    "cloud": "point cloud of a raw scan, no normals",
+    "dense": "dense point cloud, 1-3 M points, no normals",
+}
+
+#: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
+SUBSET_33 = (
+    "Sellion", "Tragion_L", "Tragion_R", "Cervicale", "Suprasternale", "Substernale",
+    "Acromion_L", "Acromion_R", "Radiale_L", "Radiale_R", "Olecranon_L", "Olecranon_R",
+    "Radial_styloid_L", "Radial_styloid_R", "Ulnar_styloid_L", "Ulnar_styloid_R",
+    "Thelion_L", "Thelion_R", "ASIS_L", "ASIS_R", "PSIS_L", "PSIS_R",
+    "Trochanterion_L", "Trochanterion_R", "Femoral_lateral_epicondyle_L",
+    "Femoral_lateral_epicondyle_R", "Lateral_malleolus_L", "Lateral_malleolus_R",
+    "Medial_malleolus_L", "Medial_malleolus_R", "Calcaneus_posterior_L",
+    "Calcaneus_posterior_R", "Omphalion",
+)  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- closed meshes
+
+
+def _surface_samples(V: np.ndarray, F: np.ndarray, spacing: float, rng: np.random.Generator):
+    """Points drawn uniformly by area, about one per ``spacing``² (k, 3), and their face index."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    n = int(area.sum() / spacing**2) + 1
+    fi = rng.choice(len(F), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    P = (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
+    return P, fi
+
+
+def winding_occupancy(V: np.ndarray, F: np.ndarray, origin: np.ndarray, h: float, shape):
+    """Voxels (shape (nx, ny, nz) bool) whose centre has winding number ≥ 1 w.r.t. the closed,
+    outward-wound triangle mesh (V, F): the union of overlapping parts counts as inside.
+
+    Voxel ``(i, j, k)`` has centre ``origin + h * (i, j, k)``. Rays run along +Z: each crossing
+    adds the sign of its triangle's normal z to every voxel before it.
+    """
+    nx, ny, nz = shape
+    uv = (V[:, :2] - origin[:2]) / h
+    a, b, c = uv[F[:, 0]], uv[F[:, 1]], uv[F[:, 2]]
+    lo = np.ceil(np.minimum(np.minimum(a, b), c)).astype(np.int64)
+    hi = np.floor(np.maximum(np.maximum(a, b), c)).astype(np.int64)
+    wh = hi - lo + 1
+    den = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = (wh[:, 0] > 0) & (wh[:, 1] > 0) & (np.abs(den) > 1e-14)
+    ti = np.flatnonzero(ok)
+    cnt = wh[ti, 0] * wh[ti, 1]
+    rep = np.repeat(np.arange(len(ti)), cnt)
+    local = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    t = ti[rep]
+    px = lo[t, 0] + local % wh[ti, 0][rep]
+    py = lo[t, 1] + local // wh[ti, 0][rep]
+    ax, ay = a[t, 0], a[t, 1]
+    l1 = ((px - ax) * (c[t, 1] - ay) - (c[t, 0] - ax) * (py - ay)) / den[t]
+    l2 = ((b[t, 0] - ax) * (py - ay) - (px - ax) * (b[t, 1] - ay)) / den[t]
+    l0 = 1.0 - l1 - l2
+    inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
+    px, py, t = px[inside], py[inside], t[inside]
+    z = l0[inside] * V[F[t, 0], 2] + l1[inside] * V[F[t, 1], 2] + l2[inside] * V[F[t, 2], 2]
+    sgn = np.sign(den[t])  # projected orientation = sign of the normal's z
+    k = np.clip(np.ceil((z - origin[2]) / h).astype(np.int64), 0, nz)  # first voxel at/after z
+    keep = (k >= 1) & (px >= 0) & (px < nx) & (py >= 0) & (py < ny)
+    flat = (px[keep] * ny + py[keep]) * nz + (k[keep] - 1)
+    A = np.bincount(flat, weights=sgn[keep], minlength=nx * ny * nz).reshape(nx, ny, nz)
+    W = np.cumsum(A[:, :, ::-1], axis=2)[:, :, ::-1]
+    return W >= 0.5
+
+
+def hair_volume(V: np.ndarray, style: str, rng: np.random.Generator):
+    """A hair solid for a body ``V`` (13380, 3) in template order: an inside-test function of
+    points (k, 3) -> (k,) bool, and the drawn parameters (metres)."""
+    tpl = load_template()
+    lm = {k: V[i] for k, i in tpl.landmarks.items()}
+    back = lm["Opisthocranion"]
+    top = lm["Vertex"]
+    front = lm["Sellion"]
+    fwd = front - back
+    fwd[1] = 0.0
+    fwd /= np.linalg.norm(fwd)
+    up = np.array([0.0, 1.0, 0.0])
+    tests = []
+    params: dict = {"style": style}
+    if "bun" in style:
+        r = float(rng.uniform(0.035, 0.055))
+        c = back - fwd * (0.6 * r) + up * float(rng.uniform(0.0, 0.06))
+        params["bun"] = {"radius": r, "centre": c.tolist()}
+        tests.append(lambda P, c=c, r=r: np.linalg.norm(P - c, axis=1) < r)
+    if style == "ponytail":
+        r = float(rng.uniform(0.025, 0.035))
+        L = float(rng.uniform(0.12, 0.25))
+        p0 = back - fwd * 0.01 + up * 0.02
+        p1 = p0 - up * L - fwd * 0.08
+
+        def tail(P: np.ndarray, p0=p0, p1=p1, r=r) -> np.ndarray:
+            d = p1 - p0
+            t = np.clip((P - p0) @ d / (d @ d), 0.0, 1.0)
+            return np.linalg.norm(P - p0 - t[:, None] * d, axis=1) < r * (1.0 - 0.4 * t)
+
+        params["ponytail"] = {"radius": r, "length": L}
+        tests.append(tail)
+    if "cap" in style:
+        th = float(rng.uniform(0.01, 0.03))
+        y0 = 0.5 * (lm["Tragion_L"][1] + lm["Tragion_R"][1])
+        head = tpl.part_mask("head")
+        face_cut = (V - back) @ fwd < 0.8 * np.linalg.norm((front - back)[[0, 2]])
+        scalp = V[head & (V[:, 1] > y0) & (face_cut | (V[:, 1] > front[1] + 0.03))]
+        tree = cKDTree(scalp)
+        params["cap"] = {"thickness": th}
+        tests.append(lambda P, tree=tree, th=th, y0=y0: (tree.query(P)[0] < th) & (P[:, 1] > y0))
+    if not tests:
+        raise ValueError(f"hair style must be one of {HAIR_STYLES}, got {style!r}")
+    params["top_m"] = float(top[1])
+
+    def inside(P: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(P), dtype=bool)
+        for f in tests:
+            out |= f(P)
+        return out
+
+    return inside, params
+
+
+def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    E = np.vstack([F[:, [0, 1]], F[:, [1, 2]]])
+    G = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
+    _, lab = connected_components(G, directed=False)
+    big = np.argmax(np.bincount(lab[F[:, 0]]))
+    return F[lab[F[:, 0]] == big]
+
+
+def closed_mesh(
+    V: np.ndarray,
+    F: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    voxel_m: float = 0.006,
+    mitten_m: float | None = 0.012,
+    hair: str | None = None,
+    floor: str = "cut",
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A closed, hole-filled, watertight mesh of a body, as booth-scanner software writes it.
+
+    Parameters
+    ----------
+    V : (13380, 3) body, metres, +Y up, floor y = 0, template order. F : its triangles.
+    rng : randomness (hair, floor cut height, surface samples).
+    voxel_m : voxel edge (metres): 5–7 mm for 40–90 k vertices, 10–14 mm for 8–20 k.
+    mitten_m : radius of the ball closing the hands (fused fingers); None keeps the fingers.
+    hair : None or one of :data:`HAIR_STYLES`.
+    floor : ``"cut"`` (flat soles 3–8 mm up), ``"plate"`` (10 mm floor plate under the feet) or
+        ``"none"``.
+
+    Returns
+    -------
+    Vc (n, 3) float64 metres, Fc (m, 3) int64 outward-wound triangles (every edge in exactly two
+    faces), info (parameters drawn).
+    """
+    from skimage.measure import marching_cubes  # dev dependency (BSD-3)
+
+    tpl = load_template()
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    h = float(voxel_m)
+    info: dict = {"voxel_m": h, "floor": floor}
+    hair_in = None
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    if hair is not None:
+        hair_in, info["hair"] = hair_volume(V, hair, rng)
+        lo, hi = lo - 0.1, hi + np.array([0.1, 0.08, 0.1])
+    if floor == "plate":
+        reach = float(rng.uniform(0.08, 0.15))
+        lo = np.minimum(lo, [lo[0] - reach, -0.012, lo[2] - reach])
+        hi = np.maximum(hi, [hi[0] + reach, hi[1], hi[2] + reach])
+    pad = 4
+    origin = lo - pad * h + h * np.array([0.137, 0.291, 0.413])  # off-grid: no exact ray hits
+    shape = tuple(int(s) for s in np.ceil((hi - origin) / h).astype(int) + pad)
+    occ0 = winding_occupancy(V, F, origin, h, shape)
+    axes = [origin[k] + h * np.arange(shape[k]) for k in range(3)]
+
+    def box(lo_b: np.ndarray, hi_b: np.ndarray) -> tuple[tuple[slice, ...], np.ndarray]:
+        """Index slices of the voxels in a box and their centres (a, b, c, 3)."""
+        i0 = np.clip(np.floor((lo_b - origin) / h).astype(int), 0, shape)
+        i1 = np.clip(np.ceil((hi_b - origin) / h).astype(int) + 1, 0, shape)
+        sl = tuple(slice(int(a), int(b)) for a, b in zip(i0, i1, strict=True))
+        C = np.stack(np.meshgrid(*[axes[k][sl[k]] for k in range(3)], indexing="ij"), -1)
+        return sl, C
+
+    # the true signed distance g near the surface (sign from the winding occupancy), minus an
+    # inflation of the hands (mittens): there g < 0 makes even sub-voxel fingers solid
+    near0 = ndimage.binary_dilation(occ0 ^ ndimage.binary_erosion(occ0), iterations=3)
+    offset = np.zeros(shape, dtype=np.float32)
+    hand_boxes = []
+    if mitten_m:
+        inflate = max(0.004, 0.4 * h)
+        for side in ("hand_L", "hand_R"):
+            H = V[tpl.part_mask(side)]
+            sl, C = box(H.min(axis=0) - 0.04, H.max(axis=0) + 0.04)
+            near = np.isfinite(
+                cKDTree(H).query(C.reshape(-1, 3), distance_upper_bound=0.03)[0]
+            ).reshape(C.shape[:3])
+            offset[sl][near] = inflate
+            near0[sl] |= near
+            hand_boxes.append((sl, near))
+        info["mitten_inflate_m"] = inflate
+    P, _ = _surface_samples(V, F, 0.0015, rng)
+    ib = np.nonzero(near0)
+    d = cKDTree(P).query(np.stack([axes[k][ib[k]] for k in range(3)], axis=1))[0]
+    g = np.where(occ0[ib], -d, d) - offset[ib]
+    occ_g = occ0.copy()
+    occ_g[ib] = g < 0
+    occ = occ_g.copy()
+    if mitten_m:
+        rad = max(mitten_m, 2.0 * h)  # a ball of at least two voxels, or thin gaps survive
+        r = int(np.ceil(rad / h))
+        ball = np.linalg.norm(np.mgrid[-r : r + 1, -r : r + 1, -r : r + 1], axis=0) * h <= rad
+        for sl, near in hand_boxes:
+            closed = ndimage.binary_closing(occ[sl], structure=ball, border_value=0)
+            occ[sl] |= closed & near
+        info["mitten_m"] = mitten_m
+    if hair_in is not None:
+        head = V[tpl.part_mask("head")]
+        sl, C = box(head.min(axis=0) - 0.1, head.max(axis=0) + np.array([0.1, 0.08, 0.1]))
+        occ[sl] |= hair_in(C.reshape(-1, 3)).reshape(C.shape[:3])
+    yy = axes[1][None, :, None]
+    if floor == "cut":
+        cut = float(rng.uniform(0.003, 0.008))
+        occ &= yy > cut
+        info["sole_cut_m"] = cut
+    elif floor == "plate":
+        feet = V[V[:, 1] < 0.03]
+        j0, j1 = np.searchsorted(axes[1], [-max(0.01, 2.0 * h), 0.0])
+        XZ = np.stack(np.meshgrid(axes[0], axes[2], indexing="ij"), -1).reshape(-1, 2)
+        d = cKDTree(feet[:, [0, 2]]).query(XZ)[0].reshape(shape[0], shape[2])
+        occ[:, j0:j1, :] |= (d < reach)[:, None, :]
+        info["plate_reach_m"] = reach
+    occ = ndimage.binary_fill_holes(occ)
+    # signed distance: exact near the untouched surface, EDT where the volume was edited
+    f = np.where(occ, -(ndimage.distance_transform_edt(occ) - 0.5),
+                 ndimage.distance_transform_edt(~occ) - 0.5) * h  # fmt: skip
+    gf = np.full(shape, np.nan, dtype=np.float64)
+    gf[ib] = g
+    band = np.isfinite(gf) & (occ == occ_g)
+    if floor == "cut":
+        band &= yy > info["sole_cut_m"] + 2 * h
+    f[band] = gf[band]
+    f = ndimage.gaussian_filter(np.clip(f, -1.5 * h, 1.5 * h), 0.5)  # truncated, then smoothed
+    f = np.pad(f, 1, constant_values=h)
+    Vc, Fc, _, _ = marching_cubes(f, level=0.0, spacing=(h, h, h))
+    Vc = Vc + origin - h
+    Fc = _largest_component(Fc.astype(np.int64), len(Vc))
+    used = np.unique(Fc)
+    remap = -np.ones(len(Vc), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    Vc, Fc = Vc[used], remap[Fc]
+    if mesh_volume(Vc, Fc) < 0:
+        Fc = Fc[:, [0, 2, 1]]
+    if floor == "plate":
+        Vc[:, 1] -= Vc[:, 1].min()  # the plate's underside is the floor
+    return Vc, Fc, info
+
+
+# ----------------------------------------------------------------------------- raw outputs
+
+
+def _sphere(c: np.ndarray, r: float, n: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Icosphere-like triangulated sphere (octahedron subdivided ``n`` times)."""
+    V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4],
+                  [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])  # fmt: skip
+    for _ in range(n):
+        E = np.sort(np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+        u, inv = np.unique(E, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        mid = V[u].mean(axis=1)
+        m = len(V) + inv.reshape(3, -1).T  # midpoints of edges 01, 12, 20
+        V = np.vstack([V, mid])
+        a, b, cc = F[:, 0], F[:, 1], F[:, 2]
+        F = np.vstack([np.c_[a, m[:, 0], m[:, 2]], np.c_[m[:, 0], b, m[:, 1]],
+                       np.c_[m[:, 2], m[:, 1], cc], np.c_[m[:, 0], m[:, 1], m[:, 2]]])  # fmt: skip
+        V /= np.linalg.norm(V, axis=1, keepdims=True)
+    return c + r * V, F
+
+
+def clutter(body: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Stray blobs and a floor ring around a body (metres, +Y up): (V, F, info)."""
+    centre = np.array([body[:, 0].mean(), 0.0, body[:, 2].mean()])
+    Vs, Fs, n0 = [], [], 0
+    nb = int(rng.integers(2, 6))
+    for _ in range(nb):
+        th = rng.uniform(0, 2 * np.pi)
+        dist = rng.uniform(0.3, 1.2)
+        c = centre + np.array([dist * np.cos(th), rng.uniform(0.1, 1.8), dist * np.sin(th)])
+        v, f = _sphere(c, float(rng.uniform(0.02, 0.06)))
+        Vs.append(v)
+        Fs.append(f + n0)
+        n0 += len(v)
+    r0, r1 = 0.25, float(rng.uniform(0.35, 0.6))
+    step = 0.01
+    g = np.arange(-r1, r1 + step, step)
+    X, Z = np.meshgrid(g, g, indexing="ij")
+    rr = np.hypot(X, Z)
+    idx = -np.ones(X.shape, dtype=np.int64)
+    ring = (rr >= r0) & (rr <= r1)
+    idx[ring] = np.arange(ring.sum()) + n0
+    P = np.c_[X[ring] + centre[0], rng.normal(0, 0.001, ring.sum()), Z[ring] + centre[2]]
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()
+    T = np.vstack([np.c_[a, c, b], np.c_[b, c, d]])
+    T = T[(T >= 0).all(axis=1)]
+    Vs.append(P)
+    Fs.append(T)
+    return np.vstack(Vs), np.vstack(Fs), {"blobs": nb, "floor_ring_m": (r0, r1)}
+
+
+def raw_scan(V: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A raw multi-view scan (6 views, 4 mm pitch, 1 mm noise) in metres: points, faces, normals."""
+    tpl = load_template()
+    sim = simulate_scan(V, tpl.F, rng, config=ScanConfig(n_views=6, pitch_m=0.004, noise_m=0.001))
+    return sim.V_scan, sim.F_scan, sim.normals
+
+
+def wind_arms_inward(
+    P: np.ndarray, T: np.ndarray, N: np.ndarray, body: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flip the faces (and vertex normals) of a raw scan that lie on the arms of ``body``."""
+    tpl = load_template()
+    arm = np.isin(tpl.part, [tpl.part_names.index(n) for n in tpl.part_names
+                             if n.startswith(("upper_arm", "forearm", "hand"))])  # fmt: skip
+    on_arm = arm[cKDTree(body).query(P)[1]]
+    flip = on_arm[T].all(axis=1)
+    T = T.copy()
+    T[flip] = T[flip][:, [0, 2, 1]]
+    N = N.copy()
+    N[on_arm] *= -1.0
+    return T, N, flip
+
+
+# ----------------------------------------------------------------------------- markers
+
+
+def _convention_direction(name: str, convention: str, seed_extra: int = 0) -> tuple[float, float]:
+    """A fixed (angle rad, distance m) per marker and convention: the convention's habit."""
+    r = np.random.default_rng(zlib.crc32(f"{convention}:{name}:{seed_extra}".encode()))
+    return float(r.uniform(0, 2 * np.pi)), float(r.uniform(0.02, 0.05))
+
+
+def other_convention_markers(
+    body: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    convention: str = "caesar62-teamB",
+) -> tuple[dict[str, np.ndarray], dict]:
+    """Markers placed by another team's convention on a body (13380, 3) in template order.
+
+    ``convention`` starting with ``subset33`` uses :data:`SUBSET_33`, else all 62 landmarks.
+    Returns name -> (3,) position (metres, body frame) and what was done (offsets mm, swapped
+    pairs, missing names).
+    """
+    tpl = load_template()
+    F = np.asarray(tpl.F, dtype=np.int64)
+    names = list(SUBSET_33) if convention.startswith("subset33") else list(tpl.landmarks)
+    N = tpl.vertex_normals(body)
+    md = MeshDistance(body, F)
+    out: dict[str, np.ndarray] = {}
+    offsets = {}
+    for n in names:
+        i = tpl.landmarks[n]
+        p, nrm = body[i], N[i]
+        e1 = np.cross(nrm, [0.0, 1.0, 0.0] if abs(nrm[1]) < 0.9 else [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(nrm, e1)
+        th, dist = _convention_direction(n, convention)
+        q = p.copy()
+        step = (np.cos(th) * e1 + np.sin(th) * e2) * dist / 4
+        for _ in range(4):  # walk along the surface in four steps
+            q = _project(md, q + step)
+        q = q + rng.normal(0.0, 0.003, 3)
+        out[n] = q
+        offsets[n] = float(np.linalg.norm(q - p) * 1000)
+    swapped = []
+    pairs = sorted({n[:-2] for n in out if n.endswith("_L") and n[:-2] + "_R" in out})
+    for base in rng.choice(pairs, size=int(rng.integers(0, 3)), replace=False):
+        a, b = base + "_L", base + "_R"
+        out[a], out[b] = out[b], out[a]
+        swapped.append(str(base))
+    missing = [str(n) for n in rng.choice(sorted(out), size=int(rng.integers(0, 5)), replace=False)]
+    for n in missing:
+        del out[n]
+    return out, {"convention": convention, "offset_mm": offsets, "swapped": swapped,
+                 "missing": missing}  # fmt: skip
+
+
+def _project(md: MeshDistance, q: np.ndarray) -> np.ndarray:
+    """Closest point on the mesh of ``md`` to q (3,)."""
+    from core.geometry import closest_point_on_triangles
+
+    _, nn = md.tree.query(q, k=8)
+    faces = np.unique(md.inc[nn].indices)
+    tri = md.F[faces]
+    Q = np.repeat(q[None], len(faces), axis=0)
+    cp = closest_point_on_triangles(Q, md.V[tri[:, 0]], md.V[tri[:, 1]], md.V[tri[:, 2]])
+    return cp[np.argmin(np.linalg.norm(cp - q, axis=1))]
+
+
+# ----------------------------------------------------------------------------- frames and cases
+
+
+def file_transform(units: str, up: str, facing_deg: float, shift_m: np.ndarray) -> np.ndarray:
+    """(4, 4) map from canonical metres (+Y up, +Z front) to a file's frame: turn the body by
+    ``facing_deg`` about +Y, shift by ``shift_m`` (metres), turn +Y to ``up``, scale to units."""
+    a = np.radians(facing_deg)
+    c, s = np.cos(a), np.sin(a)
+    Rf = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    A = np.eye(4)
+    A[:3, :3] = UNITS[units] * rotation_for_up(up).T @ Rf
+    A[:3, 3] = UNITS[units] * rotation_for_up(up).T @ np.asarray(shift_m, dtype=np.float64)
+    return A
+
+
+@dataclass
+class RealWorldCase:
+    """One real-world-like case; everything in the **file's** frame and units.
+
+    Attributes
+    ----------
+    seed, kind : what made it (``make_case(seed, kind)`` reproduces it).
+    V : (n, 3) float64 scan points. F : (m, 3) int64 triangles or None (point cloud).
+    normals : (n, 3) or None. colors : (n, 3) uint8 or None.
+    units, up : the file's units (``m``/``cm``/``mm``) and up axis (e.g. ``-z``).
+    facing_deg : rotation of the subject about the up axis.
+    to_file : (4, 4) canonical metres -> file frame.
+    truth : (13380, 3) the body (without hair), template order, file frame.
+    markers : name -> (3,) in the file frame, another team's convention (see ``marker_info``).
+    family : the case's kind; description : what it is, in words.
+    body_key : cases with the same key show the same body in the same posture.
+    params : everything drawn (body, posture, output).
+    """
+
+    seed: int
+    kind: str
+    V: np.ndarray
+    F: np.ndarray | None
+    normals: np.ndarray | None
+    colors: np.ndarray | None
+    units: str
+    up: str
+    facing_deg: float
+    to_file: np.ndarray
+    truth: np.ndarray
+    markers: dict[str, np.ndarray]
+    marker_info: dict
+    family: str
+    description: str
+    body_key: str
+    params: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}-{self.seed}"
+
+    def write(self, path: str | Path) -> Path:
+        """Write the scan to ``path`` (.ply binary, .obj or .xyz by extension); returns it."""
+        from core.io import write_mesh
+
+        path = Path(path)
+        if path.suffix.lower() == ".xyz":
+            np.savetxt(path, self.V, fmt="%.6f")
+        elif path.suffix.lower() == ".obj":
+            write_mesh(path, self.V, self.F, normals=self.normals)
+        else:
+            write_mesh(path, self.V, self.F, normals=self.normals, colors=self.colors)
+        return path
+
+    def write_markers(self, path: str | Path) -> Path:
+        """Write the markers as CSV ``name,x,y,z`` (file units) to ``path``; returns it."""
+        from core.io.markers import write_markers_csv
+
+        write_markers_csv(path, self.markers)
+        return Path(path)
+
+
+def _tf(A: np.ndarray, X: np.ndarray) -> np.ndarray:
+    return X @ A[:3, :3].T + A[:3, 3]
+
+
+def make_case(seed: int, kind: str | None = None) -> RealWorldCase:
+    """Build a real-world-like case (deterministic in ``seed`` and ``kind``).
+
+    The body and its posture depend on ``seed`` only (``closed_touching`` lowers the arms until
+    they touch), so ``make_case(s, "closed_lowres")`` and ``make_case(s, "raw")`` show the same
+    body. ``kind`` None draws one of :data:`KINDS` from the seed.
+    """
+    kinds = sorted(KINDS)
+    if kind is None:
+        kind = kinds[int(np.random.default_rng([seed, 100]).integers(len(kinds)))]
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+    tpl = load_template()
+    F_t = np.asarray(tpl.F, dtype=np.int64)
+    body = off_model_body(np.random.default_rng([seed, 101]))
+    touching = kind == "closed_touching"
+    P, pose = posture(body.V, np.random.default_rng([seed, 102]), touching=touching)
+    rng = np.random.default_rng([seed, 103, kinds.index(kind)])
+    out: dict = {}
+    normals = None
+    F: np.ndarray | None
+    if kind.startswith("closed"):
+        lowres = kind == "closed_lowres"
+        h = float(rng.uniform(0.010, 0.014) if lowres else rng.uniform(0.005, 0.007))
+        hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
+        floor = "plate" if kind == "closed_plate" else "cut"
+        X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=float(rng.uniform(0.010, 0.014)),
+                                hair=hair, floor=floor)  # fmt: skip
+        normals = vertex_normals(X, F) if rng.random() < 0.5 else None
+    elif kind == "dense":
+        n = int(rng.uniform(1.0e6, 3.0e6))
+        a, b, c = P[F_t[:, 0]], P[F_t[:, 1]], P[F_t[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        X, _ = _surface_samples(P, F_t, float(np.sqrt(area.sum() / n)), rng)
+        X = X + rng.normal(0.0, 0.0005, X.shape)
+        X = X[X[:, 1] > 0.004]
+        F = None
+        out["points"] = len(X)
+    else:
+        X, F, normals = raw_scan(P, rng)
+        if kind == "raw_inward":
+            F, normals, flip = wind_arms_inward(X, F, normals, P)
+            out["flipped_faces"] = int(flip.sum())
+        elif kind == "raw_clutter":
+            Vc, Fc, out = clutter(P, rng)
+            F = np.vstack([F, Fc + len(X)])
+            X = np.vstack([X, Vc])
+            normals = vertex_normals(X, F)
+        elif kind == "cloud":
+            F, normals = None, None
+    # frame
+    if kind == "closed_lowres":
+        units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
+    else:
+        units = str(rng.choice(list(UNITS)))
+        up = str(rng.choice(UPS))
+        facing = float(rng.uniform(0.0, 360.0))
+        shift = rng.uniform(-0.3, 0.3, 3)
+    A = file_transform(units, up, facing, shift)
+    conv = str(rng.choice(["caesar62-teamB", "subset33-teamC"]))
+    mk, minfo = other_convention_markers(P, rng, convention=conv)
+    Xf = _tf(A, X)
+    Nf = None if normals is None else normals @ A[:3, :3].T / UNITS[units]
+    desc = _describe(kind, body, pose, out, units, up, len(Xf), F)
+    return RealWorldCase(
+        seed=seed, kind=kind, V=Xf, F=F, normals=Nf, colors=None, units=units, up=up,
+        facing_deg=facing, to_file=A, truth=_tf(A, P),
+        markers={k: _tf(A, v[None])[0] for k, v in mk.items()}, marker_info=minfo,
+        family=kind, description=desc, body_key=f"{seed}{'-touching' if touching else ''}",
+        params={"sex": body.sex, "body": body.params, "posture": pose, "output": out},
+    )  # fmt: skip
+
+
+def _describe(kind, body, pose, out, units, up, n, F) -> str:
+    what = KINDS[kind].split(",")[0].split(" (")[0]
+    bits = [f"off-model {body.sex}, BMI {body.params['bmi']:.0f}, "
+            f"{body.params['stature_m'] * 100:.0f} cm", what]  # fmt: skip
+    if "hair" in out:
+        bits.append(f"hair {out['hair']['style']}")
+    if pose.get("touching"):
+        bits.append("arms touching torso")
+    else:
+        bits.append(f"arms {pose['arm_abduction']:.0f}°")
+    bits.append(f"elbows {pose['elbow_flexion']:.0f}°")
+    bits.append("fists" if pose["fist"] else "open hands")
+    bits.append(f"feet {pose['feet_gap_m'] * 100:.0f} cm apart")
+    bits.append(f"{n:,} {'vertices' if F is not None else 'points'}, {units}, up {up}")
+    return ", ".join(bits)
+
+
+def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
+    """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
+    every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
+    closed-vs-raw agreement check)."""
+    base = [k for k in sorted(KINDS) if k != "dense"]
+    out: list[tuple[int, str]] = []
+    seed = i = 0
+    while len(out) < n:
+        if seed % 4 == 0:
+            out += [(seed, "closed_lowres"), (seed, "raw")]
+        elif seed % 16 == 7:
+            out.append((seed, "dense"))
+        else:
+            out.append((seed, base[i % len(base)]))
+            i += 1
+        seed += 1
+    return out[:n]
+
+
+__all__ = [
+    "HAIR_STYLES",
+    "KINDS",
+    "SUBSET_33",
+    "RealWorldCase",
+    "benchmark_cases",
+    "closed_mesh",
+    "clutter",
+    "file_transform",
+    "hair_volume",
+    "make_case",
+    "other_convention_markers",
+    "raw_scan",
+    "wind_arms_inward",
+    "winding_occupancy",
+]

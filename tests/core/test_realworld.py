@@ -1,0 +1,243 @@
+"""Real-world-like test material (core.synth.realworld, core.synth.scanner_outputs): determinism,
+watertight closed meshes, inward-wound arms, frames, hair and mitten hands, off-model bodies."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from core.geometry import MeshDistance
+from core.synth.bodies import random_body
+from core.synth.realworld import mesh_volume, off_model_body, posture
+from core.synth.scanner_outputs import (
+    KINDS,
+    SUBSET_33,
+    UNITS,
+    benchmark_cases,
+    closed_mesh,
+    make_case,
+)
+from core.synth.targets import load_targets
+from core.template import load_template
+
+pytest.importorskip("skimage")
+
+
+def _canonical(case) -> tuple[np.ndarray, np.ndarray]:
+    """Scan points and truth mapped back to canonical metres (+Y up)."""
+    A = case.to_file
+    inv = np.linalg.inv(A[:3, :3])
+    return (case.V - A[:3, 3]) @ inv.T, (case.truth - A[:3, 3]) @ inv.T
+
+
+def _edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uses of each undirected edge and of each directed edge."""
+    D = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, und = np.unique(np.sort(D, axis=1), axis=0, return_counts=True)
+    _, dirc = np.unique(D, axis=0, return_counts=True)
+    return und, dirc
+
+
+def _winding(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Generalised winding number of points P (k, 3) w.r.t. the mesh (solid angles)."""
+    out = []
+    for p in P:
+        a, b, c = V[F[:, 0]] - p, V[F[:, 1]] - p, V[F[:, 2]] - p
+        la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+        num = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc
+               + np.einsum("ij,ij->i", b, c) * la + np.einsum("ij,ij->i", c, a) * lb)  # fmt: skip
+        out.append(np.arctan2(num, den).sum() / (2 * np.pi))
+    return np.array(out)
+
+
+@cache
+def _lowres():
+    return make_case(4, "closed_lowres")
+
+
+def test_cases_are_deterministic_and_seed_dependent():
+    a, b = make_case(3, "raw_inward"), make_case(3, "raw_inward")
+    assert np.array_equal(a.V, b.V) and np.array_equal(a.F, b.F)
+    assert np.array_equal(a.truth, b.truth)
+    assert a.markers.keys() == b.markers.keys()
+    assert all(np.array_equal(a.markers[k], b.markers[k]) for k in a.markers)
+    c = make_case(4, "raw_inward")
+    assert not np.allclose(a.truth[:100], c.truth[:100] * a.to_file[0, 0] / c.to_file[0, 0])
+
+
+def test_same_seed_same_body_across_kinds():
+    raw = make_case(4, "cloud")
+    _, t_raw = _canonical(raw)
+    _, t_closed = _canonical(_lowres())
+    np.testing.assert_allclose(t_raw, t_closed, atol=1e-9)
+
+
+def test_closed_mesh_is_watertight_outward_and_low_resolution():
+    c = _lowres()
+    assert c.units == "mm" and c.up == "+y" and c.F is not None
+    assert 8_000 <= len(c.V) <= 20_000, len(c.V)
+    und, dirc = _edge_uses(c.F)
+    assert np.all(und == 2), np.bincount(und)  # every edge in exactly two faces
+    assert np.all(dirc == 1)  # consistently wound
+    assert mesh_volume(c.V, c.F) > 0  # outward
+    X, truth = _canonical(c)
+    assert X[:, 1].min() > 0.002  # soles cut flat above the floor
+    assert abs(X[:, 1].max() - truth[:, 1].max()) < 0.01
+
+
+def test_arms_touching_torso_make_a_handle():
+    c = make_case(1, "closed_touching")
+    und, dirc = _edge_uses(c.F)
+    assert np.all(und == 2) and np.all(dirc == 1)
+    chi = len(c.V) - len(und) + len(c.F)
+    genus = (2 - chi) // 2
+    assert genus >= 1, genus
+    assert c.params["posture"]["touching"]
+
+
+def test_mitten_hands_fuse_the_fingers():
+    c = _lowres()
+    X, truth = _canonical(c)
+    tpl = load_template()
+    from core.rig import joint_positions, load_rig
+
+    rig = load_rig()
+    J = joint_positions(truth, rig=rig)
+    # points between neighbouring fingers' middle joints: outside the body, inside the mitten
+    mids = []
+    for side in (".L", ".R"):
+        for f in (2, 3, 4):
+            a, b = rig.index(f"finger{f}-2{side}"), rig.index(f"finger{f + 1}-2{side}")
+            mids.append(0.5 * (J[a] + J[b]))
+    mids = np.array(mids)
+    body_w = _winding(truth, np.asarray(tpl.F, np.int64), mids)
+    scan_w = _winding(X, c.F, mids)
+    assert np.mean(body_w < 0.5) >= 0.5  # most are between fingers on the body
+    assert np.all(scan_w[body_w < 0.5] > 0.5)  # all of those are inside the closed mesh
+
+
+def test_hair_adds_volume_on_the_head():
+    c = make_case(1, "closed_hair")
+    X, truth = _canonical(c)
+    tpl = load_template()
+    d = MeshDistance(truth, tpl.F).distances(X)
+    part = np.asarray(tpl.part_names)[tpl.part[cKDTree(truth).query(X)[1]]]
+    far = d > 0.02  # hair stands off the scalp
+    assert c.params["output"]["hair"]["style"] in ("bun", "ponytail", "cap", "cap+bun")
+    assert (far & (part == "head")).sum() > 200
+    elsewhere = ~np.isin(part, ["head", "neck", "torso", "hand_L", "hand_R"])
+    assert (far & elsewhere).sum() < 0.002 * elsewhere.sum()
+
+
+def test_raw_inward_arms_are_wound_inward():
+    c = make_case(5, "raw_inward")
+    X, truth = _canonical(c)
+    tpl = load_template()
+    N_t = tpl.vertex_normals(truth)
+    F = c.F
+    fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+    nearest = cKDTree(truth).query(X[F].mean(axis=1))[1]
+    part = np.asarray(tpl.part_names)[tpl.part[nearest]]
+    arm = np.array([p.startswith(("upper_arm", "forearm", "hand")) for p in part])
+    agree = np.einsum("ij,ij->i", fn, N_t[nearest]) > 0
+    assert arm.sum() > 1000
+    assert agree[arm].mean() < 0.1  # arms point inward
+    assert agree[~arm].mean() > 0.9  # the rest outward
+    # the file's normals follow the winding
+    vn = c.normals
+    on_arm_v = np.zeros(len(X), bool)
+    on_arm_v[F[arm].ravel()] = True
+    nn = cKDTree(truth).query(X[on_arm_v])[1]
+    Rn = c.to_file[:3, :3] / UNITS[c.units]
+    assert np.mean(np.einsum("ij,ij->i", vn[on_arm_v] @ Rn, N_t[nn]) < 0) > 0.8
+
+
+@pytest.mark.parametrize("kind", ["cloud", "raw_clutter"])
+def test_frames_units_and_clutter(kind):
+    c = make_case(6, kind)
+    s = UNITS[c.units]
+    axis = "xyz".index(c.up[1])
+    X, truth = _canonical(c)
+    stature = truth[:, 1].max() - truth[:, 1].min()
+    ext = c.truth[:, axis].max() - c.truth[:, axis].min()
+    top = c.truth[np.argmax(truth[:, 1]), axis] - c.truth[np.argmin(truth[:, 1]), axis]
+    assert np.sign(top) == (1.0 if c.up[0] == "+" else -1.0)  # the head is towards +up
+    assert ext == pytest.approx(stature * s, rel=1e-9)
+    assert truth[:, 1].min() == pytest.approx(0.0, abs=1e-9)
+    if kind == "cloud":
+        assert c.F is None and c.normals is None
+    else:
+        assert c.params["output"]["blobs"] >= 2
+        far = np.linalg.norm((X - truth.mean(axis=0))[:, [0, 2]], axis=1) > 0.6
+        assert far.sum() > 100  # stray blobs / floor ring beyond the body
+
+
+def test_markers_follow_another_convention():
+    c = _lowres()
+    tpl = load_template()
+    info = c.marker_info
+    names = SUBSET_33 if info["convention"].startswith("subset33") else tuple(tpl.landmarks)
+    assert set(c.markers) <= set(names)
+    assert len(c.markers) == len(names) - len(info["missing"])
+    off = np.array(list(info["offset_mm"].values()))
+    assert np.median(off) > 20 and off.max() < 70  # 2-5 cm along the surface (+ noise)
+
+
+def test_bodies_are_off_model():
+    """The best least-squares fit of all 426 MakeHuman targets (with scale and shift) leaves
+    ~0 on a MakeHuman-made body and millimetres on an off-model one."""
+    lib = load_targets()
+    tpl = load_template()
+    n = tpl.n_vertices
+    cols = []
+    for name in lib.names:
+        idx, d = lib.sparse(name)
+        rows = (3 * idx[:, None] + np.arange(3)).ravel()
+        cols.append(sp.csc_matrix((d.ravel(), (rows, np.zeros(len(rows), int))), shape=(3 * n, 1)))
+    cols.append(sp.csc_matrix(np.asarray(tpl.V, float).reshape(-1, 1)))
+    for k in range(3):
+        e = np.zeros((n, 3))
+        e[:, k] = 1.0
+        cols.append(sp.csc_matrix(e.reshape(-1, 1)))
+    A = sp.hstack(cols).tocsc()
+    AtA = (A.T @ A).toarray()
+
+    def rms_mm(V):
+        b = np.asarray(V, float).ravel()
+        x = np.linalg.lstsq(AtA, A.T @ b, rcond=None)[0]
+        r = (b - A @ x).reshape(-1, 3)
+        return float(np.sqrt((r**2).sum(axis=1).mean()) * 1000)
+
+    mh = rms_mm(random_body(np.random.default_rng(0), pose=False).V)
+    off = [rms_mm(off_model_body(np.random.default_rng(s)).V) for s in range(2)]
+    assert mh < 0.05, mh
+    assert min(off) > 1.5 and min(off) > 30 * mh, (off, mh)
+
+
+def test_off_model_body_reaches_the_target_weight_and_postures_vary():
+    b = off_model_body(np.random.default_rng(11), bmi=50.0)
+    assert b.params["bmi"] == pytest.approx(50.0, rel=0.05)
+    thin = off_model_body(np.random.default_rng(11), bmi=16.0)
+    assert thin.params["bmi"] < 20.0
+    P, ang = posture(b.V, np.random.default_rng(1))
+    assert 5.0 <= ang["arm_abduction"] <= 60.0 and 0.0 <= ang["feet_gap_m"] <= 0.4
+    assert P[:, 1].min() == pytest.approx(0.0)
+
+
+def test_closed_mesh_floor_plate_and_benchmark_list():
+    b = off_model_body(np.random.default_rng(2))
+    tpl = load_template()
+    V, F, info = closed_mesh(b.V, tpl.F, np.random.default_rng(0), voxel_m=0.014, floor="plate")
+    und, _ = _edge_uses(F)
+    assert np.all(und == 2)
+    assert V[:, 1].min() == 0.0 and info["plate_reach_m"] >= 0.08
+    feet_x = b.V[b.V[:, 1] < 0.02, 0]
+    assert V[V[:, 1] < 0.005, 0].max() > feet_x.max() + 0.05  # the plate reaches past the feet
+    cases = benchmark_cases(40)
+    assert len(cases) == 40 and len(set(cases)) == 40
+    assert {k for _, k in cases} == set(KINDS)
