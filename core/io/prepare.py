@@ -17,9 +17,10 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from core.errors import InputFormatError
-from core.io._geometry import edge_use_counts, face_normals, normalize, vertex_normals
+from core.io._geometry import normalize, vertex_normals
 from core.io.frame import apply_frame, detect_frame
 from core.io.markers import read_markers
+from core.io.orient import orient_components
 from core.io.readers import read_mesh
 from core.scan import FrameInfo, RawMesh, Scan
 
@@ -235,15 +236,13 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo) -> Scan:
     F = m.F
     isolated = np.zeros(n, bool)
     if F is not None:
-        # outward winding: area-weighted face normals should point away from the vertical axis
-        fn = face_normals(V, F)
+        # consistent, outward winding per component (scanner parts may be wound inward)
         centres = (V[F[:, 0]] + V[F[:, 1]] + V[F[:, 2]]) / 3.0
-        if np.einsum("ij,ij->", fn, _radial(centres)) < 0:
-            F = F[:, [0, 2, 1]]
-            fn = -fn
-            notes.append("triangles were wound inward; flipped all to face outward")
-        vn = vertex_normals(V, F, face_normals=fn)
-        E, counts = edge_use_counts(F, n)
+        repair = orient_components(V, F, centres, _radial(centres))
+        F = repair.F
+        notes.extend(repair.notes)
+        vn = vertex_normals(V, F, face_normals=repair.face_normals)
+        E, counts = repair.edges, repair.edge_counts
         boundary = np.zeros(n, bool)
         boundary[E[counts != 2].ravel()] = True
         el = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
@@ -270,7 +269,19 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo) -> Scan:
         ok = np.linalg.norm(N, axis=1) > 1e-12
         N = np.where(ok[:, None], N, vn)
         N = normalize(N)
-        if np.einsum("ij,ij->", N, _radial(V)) < 0:
+        if F is not None:  # per component: agree with the (repaired) outward winding
+            _, vlabel = csgraph.connected_components(
+                sparse.coo_matrix((np.ones(len(F) * 3), (np.repeat(F[:, 0], 3), F.ravel())),
+                                  shape=(n, n)), directed=False)  # fmt: skip
+            agree = np.bincount(vlabel, np.einsum("ij,ij->i", N, vn))
+            bad = agree < 0
+            if bad.any():
+                N = np.where(bad[vlabel][:, None], -N, N)
+                notes.append(
+                    f"normals from the file pointed inward in {int(bad.sum())} of {len(bad)} "
+                    "components; flipped those"
+                )
+        elif np.einsum("ij,ij->", N, _radial(V)) < 0:
             N = -N
             notes.append("normals from the file pointed inward; flipped all")
         notes.append("normals from file")
