@@ -22,6 +22,7 @@ from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.correspondence import ScanIndex
 from core.registration.initialization import MarkerAlignment, Similarity, align_markers
+from core.registration.markers import CONSISTENT_WEIGHT_FLOOR, screen_markers
 from core.registration.multires import Hierarchy, build_hierarchy
 from core.registration.operators import (
     ResolutionLevel,
@@ -30,7 +31,7 @@ from core.registration.operators import (
     unique_edges,
     vertex_normals,
 )
-from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit
+from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit, part_labels
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
@@ -85,6 +86,7 @@ class FitReport:
     markers_used: list[str] = field(default_factory=list)
     markers_dropped: list[str] = field(default_factory=list)
     marker_residuals_m: dict[str, float] = field(default_factory=dict)
+    marker_weights: dict[str, float] = field(default_factory=dict)  # robust weight in E_m, 0..1
     scale: float = float("nan")
     units: str | None = None
     up: str | None = None
@@ -196,6 +198,8 @@ def iter_fit(
     marker_outlier_distance: float = 0.05,
     initial_similarity: Similarity | None = None,
     prior_options: dict[str, Any] | None = None,
+    marker_trust: float | None = None,
+    part_weights: dict[str, float] | None = None,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -208,14 +212,21 @@ def iter_fit(
     max_distance : metres; farther scan points are not compatible (paper: 10 cm).
     max_angle_deg : normals more than this apart are not compatible (paper: 90°).
     confidence_full_at : confidence at which the data weight reaches 1 (paper: 0.2).
-    marker_far_distance : metres; markers farther than this from any scan point are dropped.
+    marker_far_distance : metres; when every marker is farther than this from the scan, the
+        markers are in another frame or unit: ``FitError``. Single markers are screened by
+        ``core.registration.markers`` (dropped only when both the scan and their neighbours
+        contradict them).
     marker_outlier_distance : metres; after the body prior, markers farther than this from the
-        fitted body are dropped with a warning.
+        fitted body are named in a warning (they keep their robust weight).
     shape_prior : personalise the template first (``core.registration.shape_prior``); False runs
         the paper's method from the plain template.
     initial_similarity : template → scan alignment to start from when ``markers`` is empty
         (markerless fitting, ``core.matching``).
     prior_options : extra keyword options of ``fit_body_prior`` (e.g. ``k_schedule``).
+    marker_trust : minimum robust weight (0..1) of every marker in the body prior (default: half
+        for markers that agree with their neighbours, 0 for the others); a retry sets 1.
+    part_weights : quality part name (``core.registration.quality.PARTS``) -> multiplier of
+        that part's data weight in the body prior (a retry raises a lost part's).
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -231,42 +242,55 @@ def iter_fit(
 
     index = ScanIndex(scan, confidence_full_at=confidence_full_at)
 
-    # Markers: drop unknown names (readers reject them earlier), far ones, then align.
+    # Markers: unknown names are an error (readers reject them earlier); a marker is dropped
+    # only when both the scan and its neighbours contradict it (core.registration.markers).
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in markers.items()}
     unknown = sorted(set(markers) - set(tpl.landmarks))
     if unknown:
         raise MarkerError(f"unknown marker names: {', '.join(unknown)}", unknown=unknown)
+    tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
+    consistent: dict[str, bool] = {}
     if markers:
         names = list(markers)
         dist = index.distance_to_points(np.array([markers[k] for k in names]))
-        far = [k for k, d in zip(names, dist, strict=True) if d > marker_far_distance]
-        if far and len(far) == len(names):
+        if (dist > marker_far_distance).all():
             raise FitError(
                 f"all markers are more than {marker_far_distance * 100:.0f} cm from the scan: "
                 "are they in the scan's units and frame?",
                 nearest_m=float(dist.min()),
             )
-        for k in far:
-            d = float(dist[names.index(k)])
-            report.warnings.append(f"marker {k} is {d * 100:.1f} cm from the scan: ignored")
+        screening = screen_markers(index, tl, markers)
+        report.warnings.extend(screening.warnings)
+        report.markers_dropped.extend(screening.dropped)
+        for k in screening.dropped:
             markers.pop(k)
-        report.markers_dropped.extend(far)
-    tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
+        consistent = screening.consistent
     if markers or initial_similarity is None:
+        # the similarity from the markers that agree; the others stay in as evidence (weighed)
         align = align_markers(tl, markers)
+        report.warnings.extend(align.warnings)
+        align = MarkerAlignment(align.similarity, list(markers), [], align.residuals)
     else:  # markerless: the caller chose the initial alignment
         if not shape_prior:
             raise FitError("a fit without markers needs the body prior (shape_prior=True)")
         align = MarkerAlignment(initial_similarity, [], [], {})
-    report.warnings.extend(align.warnings)
-    report.markers_dropped.extend(align.dropped)
     report.markers_used = align.used
     report.marker_residuals_m = align.residuals
     sim = align.similarity
     marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
+    marker_w = np.ones(len(align.used))
     F_full = np.asarray(tpl.F, dtype=np.int64)
     V_base = tpl.V
     if shape_prior:
+        floor = np.array([CONSISTENT_WEIGHT_FLOOR * consistent.get(k, False) for k in align.used])
+        if marker_trust is not None:
+            floor = np.full(len(align.used), float(marker_trust))
+        vw = None
+        if part_weights:
+            labels, pnames = part_labels(tpl)
+            vw = np.ones(tpl.n_vertices)
+            for pname, f in part_weights.items():
+                vw[labels == pnames.index(pname)] = float(f)
         prior = fit_body_prior(
             index,
             tpl.V,
@@ -276,6 +300,8 @@ def iter_fit(
             sim,
             data_mask=ops.full.data_mask,
             max_distance=max_distance,
+            marker_floor=floor,
+            vertex_weight=vw,
             **(prior_options or {}),
         )
         report.scale = prior.similarity.s
@@ -287,23 +313,26 @@ def iter_fit(
             f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
             f"data rms {prior.rms_data_m * 1000:.1f} mm"
         )
-        # markers the fitted body cannot reach are misplaced or misnamed: leave them out
-        used = list(align.used)
-        for name, r in zip(used, prior.marker_residuals_m, strict=True):
+        # markers the fitted body cannot reach and their neighbours contradict: weighed down
+        # (robust weights of the prior, carried into E_m), never dropped for the prior's sake
+        marker_w = prior.marker_weights.copy()
+        for name, r, wm in zip(align.used, prior.marker_residuals_m, marker_w, strict=True):
             if r > marker_outlier_distance:
-                report.warnings.append(
-                    f"marker {name} is {r * 100:.1f} cm from the fitted body: ignored "
-                    "(misplaced or misnamed?)"
+                how = (
+                    "kept: it agrees with its neighbours"
+                    if consistent.get(name, False)
+                    else f"weighed down to {wm:.2f} (misplaced or misnamed?)"
                 )
-                report.markers_dropped.append(name)
-                align.used.remove(name)
-                report.marker_residuals_m.pop(name, None)
-        marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
+                report.warnings.append(
+                    f"marker {name} is {r * 100:.1f} cm from the fitted body: {how}"
+                )
+        report.marker_weights = {k: float(w) for k, w in zip(align.used, marker_w, strict=True)}
         # the affine fit starts from the posed, personalised body, already in the scan frame
         V_base = prior.X
         sim = Similarity(1.0, np.eye(3), np.zeros(3))
     else:
         report.scale = sim.s
+        report.marker_weights = {k: 1.0 for k in align.used}
 
     # Solver frame: millimetres (u) about the similarity-mapped template centre.
     cb = V_base.mean(axis=0)  # template-side centre, metres
@@ -384,6 +413,7 @@ def iter_fit(
                     to_solver(corr.targets[d_idx]),
                     m_idx,
                     marker_pos,
+                    marker_w,
                 )
             else:
                 w = np.zeros(level.n)
@@ -396,6 +426,7 @@ def iter_fit(
                     np.zeros((0, 3)),
                     m_idx,
                     marker_pos,
+                    marker_w,
                 )
             x_new, stats = solver.solve(terms, x, x_reg)
             n_fact += int(stats.factorized)
@@ -454,22 +485,78 @@ def iter_fit(
     yield FitResult(vertices=X, faces=F_full, affines=A_m, data_weight=weights_full, report=report)
 
 
-@single_blas_thread
-def fit(
-    scan: Scan,
-    markers: dict[str, np.ndarray],
-    *,
-    callback: Callable[[Progress], bool | None] | None = None,
-    **options: Any,
-) -> FitResult:
-    """Fit the template to ``scan`` guided by ``markers``; see :func:`iter_fit` for options.
+RETRIES = (
+    # (name, options): tried in this order while the fit's quality is not good
+    ("markers trusted", {"marker_trust": 1.0}),
+    ("lost parts weighted x4, scan→body pairs", {"part_weight": 4.0, "bidirectional": True}),
+)
+_RANK = {"good": 0, "suspect": 1, "failed": 2}
 
-    ``callback(progress)`` is called after every correspondence update; returning ``False``
-    cancels the fit (:class:`FitCancelled`).
-    """
+
+def _score(res: FitResult) -> tuple[int, int, float]:
+    """Lower is better: verdict, number of parts not good, scan→fit p95."""
+    q = res.report.quality
+    if q is None:
+        return (0, 0, res.report.scan_to_fit_p95_m)
+    bad = sum(p.quality != "good" for p in q.parts.values())
+    return (_RANK[q.quality], bad, res.report.scan_to_fit_p95_m)
+
+
+def _run(scan: Scan, markers: dict[str, np.ndarray], callback, options: dict) -> FitResult:
     for item in iter_fit(scan, markers, **options):
         if isinstance(item, FitResult):
             return item
         if callback is not None and callback(item) is False:
             raise FitCancelled(f"fit cancelled at stage {item.stage}, iteration {item.iteration}")
     raise RuntimeError("iter_fit ended without a result")  # pragma: no cover
+
+
+@single_blas_thread
+def fit(
+    scan: Scan,
+    markers: dict[str, np.ndarray],
+    *,
+    callback: Callable[[Progress], bool | None] | None = None,
+    retry: bool = True,
+    **options: Any,
+) -> FitResult:
+    """Fit the template to ``scan`` guided by ``markers``; see :func:`iter_fit` for options.
+
+    ``callback(progress)`` is called after every correspondence update; returning ``False``
+    cancels the fit (:class:`FitCancelled`).
+
+    With ``retry`` (default) a fit whose quality check (``core.registration.quality``) is not
+    ``good`` is re-run with the body prior changed (:data:`RETRIES`: every marker trusted at
+    full weight; then the parts that are not good weighted ×4 with scan→body pairs), and the
+    best result is kept (verdict, then parts not good, then scan→fit p95). The report's notes
+    list the attempts; a part still lost stays in the verdict with its name.
+    """
+    res = _run(scan, markers, callback, options)
+    q = res.report.quality
+    if not retry or q is None or q.quality == "good" or not options.get("shape_prior", True):
+        return res
+    attempts = [f"first fit: {q.quality}"]
+    best = res
+    for name, opt in RETRIES:
+        bq = best.report.quality
+        assert bq is not None
+        if bq.quality == "good":
+            break
+        o = dict(options)
+        if "part_weight" in opt:
+            weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
+            o["part_weights"] = {p: opt["part_weight"] for p in weak}
+            po = dict(o.get("prior_options") or {})
+            po["bidirectional"] = opt["bidirectional"]
+            o["prior_options"] = po
+        else:
+            o.update(opt)
+        r = _run(scan, markers, callback, o)
+        rq = r.report.quality
+        attempts.append(f"{name}: {rq.quality if rq else 'n/a'}")
+        if _score(r) < _score(best):
+            best = r
+    best.report.notes.append(
+        "quality retries: " + "; ".join(attempts) + f" (kept: {best.report.quality.quality})"
+    )
+    return best

@@ -124,6 +124,26 @@ class PriorFit:
     marker_residuals_m: np.ndarray  # (km,) per marker, after the fit
     data_cost_m: float  # rms template→scan distance, unmatched vertices counted as 5 cm
     coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm
+    marker_weights: np.ndarray  # (km,) final robust weight of each marker, fraction of full
+
+
+def marker_weights(
+    residuals: np.ndarray,
+    iteration: int,
+    iterations: int,
+    scale_start: float,
+    scale_end: float,
+    floor: np.ndarray,
+) -> np.ndarray:
+    """Annealed Cauchy weights in [0, 1] of markers with ``residuals`` (km,) metres.
+
+    ``w = max(floor, 1 / (1 + (r / s)²))`` with ``s`` going geometrically from ``scale_start``
+    (iteration 0) to ``scale_end`` (iteration ``iterations // 2`` and later).
+    """
+    half = max(1, iterations // 2)
+    t = min(1.0, iteration / half)
+    s = scale_start * (scale_end / scale_start) ** t
+    return np.maximum(floor, 1.0 / (1.0 + (np.asarray(residuals) / s) ** 2))
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -252,6 +272,9 @@ def fit_body_prior(
     pose_prior_weight: float = 1e-3,
     marker_weight: float = 4.0,
     marker_scale: float = 0.03,
+    marker_scale_start: float = 0.3,
+    marker_floor: np.ndarray | None = None,
+    vertex_weight: np.ndarray | None = None,
     subsample: int = 3,
     k_schedule: tuple[int, ...] | None = None,
     bidirectional: bool = False,
@@ -269,8 +292,16 @@ def fit_body_prior(
     shape_prior_weight : weight of ‖c/σ‖² relative to the data (in units of one data row, mm²).
     pose_prior_weight : weight of ‖ω‖² (radians²) relative to one data row in m².
     marker_weight : weight of a marker coordinate relative to one point-to-plane data row.
-    marker_scale : metres; markers whose residual exceeds this lose weight (Cauchy), so a
-        misplaced or misnamed marker cannot bend the body.
+    marker_scale, marker_scale_start : metres; robust (Cauchy) marker weights
+        ``w = marker_weight / (1 + (r / s)²)`` with a scale ``s`` that anneals geometrically from
+        ``marker_scale_start`` to ``marker_scale`` over the first half of the iterations (then
+        holds): early on every marker pulls (the pose can still reach it), later a misplaced or
+        misnamed marker cannot bend the body.
+    marker_floor : (km,) minimum weight of each marker as a fraction of ``marker_weight``
+        (``core.registration.markers``: markers consistent with their neighbours keep half their
+        weight whatever the current fit says); default 0.
+    vertex_weight : (n,) multiplier of each template vertex's data rows (default 1): a retry
+        raises a lost body part's weight so its data pulls it back.
     k_schedule : number of active shape components per iteration (the paper's k' schedule:
         few first, more later); the last entry holds for the remaining iterations.
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
@@ -287,6 +318,10 @@ def fit_body_prior(
     mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
     sub = np.zeros(n, bool)
     sub[::subsample] = True
+    floor = np.zeros(len(marker_vid)) if marker_floor is None else np.asarray(marker_floor, float)
+    if floor.shape != (len(marker_vid),):
+        raise ValueError(f"marker_floor must have shape ({len(marker_vid)},), got {floor.shape}")
+    mw = np.full(len(marker_vid), marker_weight)
     c = np.zeros(k)
     local = np.broadcast_to(np.eye(3), (B, 3, 3)).copy()
     rows = np.zeros(0, dtype=np.int64)
@@ -316,6 +351,8 @@ def fit_body_prior(
                 P = np.vstack([P, s_P])
                 w = np.r_[w, s_w]
                 Np = np.vstack([Np, s_N @ sim.R])
+            if vertex_weight is not None:
+                w = w * vertex_weight[rows]
         else:
             Np = np.zeros((0, 3))
         Q = ((P - sim.t) @ sim.R) / sim.s
@@ -329,11 +366,11 @@ def fit_body_prior(
         sw = np.sqrt(w)
         A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
         b_d = np.einsum("rc,rc->r", Np, Q - Xp[rows]) * sw
-        # robust marker weights (Cauchy): a misplaced or misnamed marker loses its pull
+        # robust marker weights, annealed: a misplaced or misnamed marker loses its pull
         res_m = np.linalg.norm(Qm - Xp[marker_vid], axis=1) * sim.s
-        mw = marker_weight / (1.0 + (res_m / marker_scale) ** 2)
-        if it < 2:
-            mw = np.full(len(marker_vid), marker_weight)
+        mw = marker_weight * marker_weights(
+            res_m, it, iterations, marker_scale_start, marker_scale, floor
+        )
         A_m = Jall[nd:] * np.sqrt(mw)[:, None, None]
         A_m = A_m.reshape(-1, k + 3 * B)
         b_m = ((Qm - Xp[marker_vid]) * np.sqrt(mw)[:, None]).ravel()
@@ -368,6 +405,7 @@ def fit_body_prior(
     rest = V0 + U @ c
     X = sim.apply(Xp)
     res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
+    final_w = marker_weights(res_m, iterations, iterations, marker_scale_start, marker_scale, floor)
     rms_m = float(np.sqrt(np.mean(res_m**2))) if len(res_m) else float("nan")
     cost = float("nan")
     coverage = float("nan")
@@ -387,5 +425,5 @@ def fit_body_prior(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
-        marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage,
+        marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage, marker_weights=final_w,
     )  # fmt: skip

@@ -25,6 +25,7 @@ class SystemTerms:
 
     data_idx/data_w/data_targets : vertices with a data correspondence, weights, targets (k, 3).
     marker_idx/marker_targets : marked vertices and marker positions (km, 3).
+    marker_w : (km,) per-marker weights (robust weights of the body prior); default 1.
     """
 
     alpha: float
@@ -35,6 +36,13 @@ class SystemTerms:
     data_targets: np.ndarray
     marker_idx: np.ndarray
     marker_targets: np.ndarray
+    marker_w: np.ndarray | None = None
+
+    @property
+    def marker_weights(self) -> np.ndarray:
+        if self.marker_w is None:
+            return np.ones(len(self.marker_idx))
+        return np.asarray(self.marker_w, dtype=np.float64)
 
 
 @dataclass
@@ -81,7 +89,7 @@ class AffineSolver:
         if t.alpha > 0 and len(idx):
             M = M + t.alpha * lv.gram(idx, w[idx])
         if t.gamma > 0 and len(t.marker_idx):
-            M = M + t.gamma * lv.gram(t.marker_idx, np.ones(len(t.marker_idx)))
+            M = M + t.gamma * lv.gram(t.marker_idx, t.marker_weights)
         eps = REGULARIZATION * max(float(M.diagonal().mean()), 1e-12)
         return (M + eps * sp.identity(4 * lv.n)).tocsc(), eps
 
@@ -117,8 +125,7 @@ class AffineSolver:
         if t.alpha > 0 and len(idx):
             b = b + t.alpha * lv.rhs(idx, w[idx], targets[idx])
         if t.gamma > 0 and len(t.marker_idx):
-            ones = np.ones(len(t.marker_idx))
-            b = b + t.gamma * lv.rhs(t.marker_idx, ones, t.marker_targets)
+            b = b + t.gamma * lv.rhs(t.marker_idx, t.marker_weights, t.marker_targets)
         return self._lu.solve(b), SolveStats(factorized=factorized, changed_fraction=changed)
 
 
@@ -130,7 +137,11 @@ def energies(level: ResolutionLevel, t: SystemTerms, x: np.ndarray) -> dict[str,
     e_d = float(np.sum(t.data_w * np.sum((X[t.data_idx] - t.data_targets) ** 2, axis=1)))
     diff = A[level.edges[:, 0]] - A[level.edges[:, 1]]
     e_s = float(np.sum(diff**2))
-    e_m = float(np.sum((X[t.marker_idx] - t.marker_targets) ** 2)) if len(t.marker_idx) else 0.0
+    e_m = (
+        float(np.sum(t.marker_weights * np.sum((X[t.marker_idx] - t.marker_targets) ** 2, axis=1)))
+        if len(t.marker_idx)
+        else 0.0
+    )
     return {
         "data": e_d,
         "smoothness": e_s,

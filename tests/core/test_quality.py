@@ -128,3 +128,25 @@ def test_failed_quality_exits_3_and_says_why(case, fitted, capsys):
 def test_rejects_a_body_of_the_wrong_shape(case):
     with pytest.raises(ValueError, match="13380"):
         assess_fit(case.scan, np.zeros((10, 3)))
+
+
+def test_lost_head_is_retried_and_recovered_or_reported(case):
+    # the head markers agree with each other but sit 12 cm in front of the face: the first fit
+    # follows them off the scan; the retries (markers trusted, then the lost part weighted with
+    # scan→body pairs) must bring the head back, or the verdict must name it
+    names = (
+        "Vertex", "Pronasale", "Sellion", "Glabella", "Menton", "Supramenton", "Opisthocranion",
+        "Tragion_L", "Tragion_R", "Infraorbitale_L", "Infraorbitale_R",
+    )  # fmt: skip
+    m = {k: v + np.array([0.0, 0.0, 0.12]) if k in names else v for k, v in case.markers.items()}
+    head = load_template().part_mask("head")
+    first = fit(case.scan, m, schedule=Schedule.fast(), retry=False)
+    assert first.report.quality.parts["head"].quality == "failed"  # the check sees the lost head
+    res = fit(case.scan, m, schedule=Schedule.fast())
+    q = res.report.quality
+    assert any(n.startswith("quality retries: first fit: failed") for n in res.report.notes)
+    err = np.linalg.norm(res.vertices[head] - case.truth[head], axis=1)
+    if q.quality == "good":
+        assert err.mean() < 0.015 and q.parts["head"].scan_to_fit_p95_m < 0.006
+    else:
+        assert any(r.startswith("head:") for r in q.reasons)
