@@ -348,6 +348,26 @@ def _binary_element(
         for p in el.props
     ]
     starts = _uniform_row_starts(data, off, n, props)
+    if starts is not None and n:  # one structured view, no gathers
+        counts0, _ = _row_layout(data, off, props)  # type: ignore[misc]
+        fields, li = [], 0
+        for i, (vt, ct) in enumerate(props):
+            if ct is None:
+                fields.append((f"p{i}", vt))
+            else:
+                fields.append((f"c{i}", ct))
+                fields.append((f"p{i}", vt, (counts0[li],)))
+                li += 1
+        rec = np.frombuffer(data, np.dtype(fields), n, off)
+        out, li = {}, 0
+        for i, p in enumerate(el.props):
+            if props[i][1] is None:
+                out[p.name] = rec[f"p{i}"]
+            else:
+                c = counts0[li]
+                out[p.name] = (np.full(n, c, dtype=np.int64), rec[f"p{i}"].reshape(n * c))
+                li += 1
+        return out, off + n * rec.dtype.itemsize
     if starts is None:
         starts = _row_starts(data, off, n, props, el.name, what)
     buf = np.frombuffer(data, np.uint8)
