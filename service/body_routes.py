@@ -49,7 +49,8 @@ from service.shape_routes import (
     _wants_json,
     body_glb,
     get_model,
-    synthesize_vertices,
+    synthesize_body,
+    warnings_header,
 )
 
 log = logging.getLogger("bodyspace.service")
@@ -75,6 +76,18 @@ MESH_RESPONSE: dict[str, Any] = {
 # ----------------------------------------------------------------------------- helpers
 
 
+def _warnings(b: Body) -> list[str]:
+    """The model's extrapolation warnings for a stored body (see ``BodyOut.warnings``)."""
+    m = get_model(b.model)
+    names = m.space(b.sex).features.names
+    if b.source == "model":
+        src = b.params or {}
+    else:
+        src = {k: v for k, v in (b.features or {}).items() if k in ("height_m", "weight_kg")}
+    feats = {k: float(v) for k, v in src.items() if k in names and isinstance(v, int | float)}
+    return m.range_warnings(b.sex, feats)
+
+
 def _body_out(b: Body) -> BodyOut:
     return BodyOut(
         id=b.id,
@@ -85,6 +98,7 @@ def _body_out(b: Body) -> BodyOut:
         derived_from=b.derived_from,
         params=b.params or {},
         features=b.features or {},
+        warnings=_warnings(b),
         created_at=aware(b.created_at),  # type: ignore[arg-type]
     )
 
@@ -202,8 +216,9 @@ def _mesh_response(
     request: Request, b: Body, V: np.ndarray, status: int = 200, **headers: str
 ) -> Response:
     F = _template_faces()
+    meta = _body_out(b)
     if _wants_json(request):
-        out = _body_out(b).model_dump(mode="json")
+        out = meta.model_dump(mode="json")
         out["vertices"] = V.tolist()
         out["faces"] = F.tolist()
         return Response(
@@ -212,7 +227,12 @@ def _mesh_response(
             media_type="application/json",
             headers=headers,
         )
-    return Response(body_glb(V), status_code=status, media_type=GLB, headers=headers)
+    return Response(
+        body_glb(V),
+        status_code=status,
+        media_type=GLB,
+        headers={**headers, **warnings_header(meta.warnings)},
+    )
 
 
 # ----------------------------------------------------------------------------- routes
@@ -265,7 +285,7 @@ def create_body(
             source="fit", params=params, fit_id=fit.id,
         )  # fmt: skip
     else:
-        V = synthesize_vertices(m, body)
+        V, _ = synthesize_body(m, body)  # its warnings: BodyOut.warnings
         params = body.model_dump(exclude={"model", "sex", "fit_id"}, exclude_none=True)
         row = _store_body(
             session, store, tenant=tenant, V=V, model=body.model, sex=body.sex,

@@ -16,7 +16,8 @@ result as the route (:func:`service.shape_routes.synthesize`):
 Everything else -- any error, a key not cached, the first request of a model, JSON answers,
 other content types -- goes to the app unchanged (the body, if already read, is replayed), so
 that errors, their shapes and every other behaviour stay the route's own. The answer's headers
-are those of the route's ``Response``: ``content-length`` and ``content-type``.
+are those of the route's ``Response``: ``content-length``, ``content-type`` and, for a body the
+model extrapolated, ``x-bodyspace-warnings`` (:func:`service.shape_routes.warnings_header`).
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ class SynthesizeFastPath:
         m = PATH.fullmatch(scope["path"])
         if m is None or scope.get("root_path"):
             return await self.app(scope, receive, send)
-        answer, chunks = await self._try(m.group(1), scope, receive)
+        answer, extra, chunks = await self._try(m.group(1), scope, receive)
         if answer is None:
             return await self.app(scope, _replay(chunks, receive), send)
         await send(
@@ -61,6 +62,7 @@ class SynthesizeFastPath:
                 "type": "http.response.start",
                 "status": 200,
                 "headers": [
+                    *extra,
                     (b"content-length", str(len(answer)).encode()),
                     (b"content-type", b"model/gltf-binary"),
                 ],
@@ -70,36 +72,37 @@ class SynthesizeFastPath:
 
     async def _try(
         self, model: str, scope: dict, receive: Any
-    ) -> tuple[memoryview | None, list[dict]]:
-        """The GLB, or None (and the messages read so far) when the app must answer."""
+    ) -> tuple[memoryview | None, list[tuple[bytes, bytes]], list[dict]]:
+        """The GLB and its extra headers, or None (and the messages read so far) when the app
+        must answer."""
         from service import shape_routes as sr
 
         chunks: list[dict] = []
         headers = scope["headers"]
         ctype = _header(headers, b"content-type")
         if ctype is None or ctype.strip().lower() != b"application/json":
-            return None, chunks
+            return None, [], chunks
         accept = (_header(headers, b"accept") or b"").decode("latin-1").lower()
         if "application/json" in accept and sr.GLB not in accept:
-            return None, chunks
+            return None, [], chunks
         if model not in sr._warm:
-            return None, chunks
+            return None, [], chunks
         key = _api_key(headers)
         if not key:
-            return None, chunks
+            return None, [], chunks
         request = _StateOnly(scope)
         tenant = key_cache(request).get(hash_key(key))  # type: ignore[arg-type]
         if tenant is KeyCache.MISS or tenant is None:
-            return None, chunks
+            return None, [], chunks
         raw = bytearray()
         while True:
             msg = await receive()
             chunks.append(msg)
             if msg["type"] != "http.request":
-                return None, chunks
+                return None, [], chunks
             raw += msg.get("body", b"")
             if len(raw) > MAX_BODY:
-                return None, chunks
+                return None, [], chunks
             if not msg.get("more_body", False):
                 break
         try:
@@ -107,7 +110,7 @@ class SynthesizeFastPath:
             V = sr.synthesize_vertices(sr.get_model(model), body)
             return memoryview(sr._glb_encoder().encode_buffer(V)), chunks
         except Exception:  # the app answers (and reports) it the route's way
-            return None, chunks
+            return None, [], chunks
 
 
 def _api_key(headers: list[tuple[bytes, bytes]]) -> str | None:

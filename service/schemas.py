@@ -281,6 +281,10 @@ class SynthesizedBody(BaseModel):
     measurements: dict[str, float | None] = Field(
         description="ANSUR II measurements of the body (metres; weightkg in kg)"
     )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="where the model extrapolated beyond its training range (empty inside it)",
+    )
 
 
 # ----------------------------------------------------------------------------- bodies
@@ -389,6 +393,12 @@ class BodyOut(BaseModel):
         description="the model's features of the body: measured height_m (m) and weight_kg "
         "(kg, volume x the model's density), the others (age years, measurements m) the most "
         "likely given its shape"
+    )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="where the body lies beyond the model's training range (a model body: its "
+        "request's features; a fit's or an edited body: its measured height_m and weight_kg), "
+        "so that the model extrapolates it and edits of it; empty inside the range",
     )
     created_at: datetime
 

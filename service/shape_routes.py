@@ -33,6 +33,14 @@ router = APIRouter(
 
 GLB = "model/gltf-binary"
 SEXES = ("female", "male")
+#: Response header of a GLB answer whose body the model extrapolated: the warnings as a JSON
+#: array of strings (ASCII, non-ASCII characters escaped); absent when there are none.
+WARNINGS_HEADER = "X-Bodyspace-Warnings"
+
+
+def warnings_header(warnings: list[str]) -> dict[str, str]:
+    """``{WARNINGS_HEADER: JSON array}``, or ``{}`` when there are no warnings."""
+    return {WARNINGS_HEADER: json.dumps(warnings, ensure_ascii=True)} if warnings else {}
 
 
 def _default() -> Any:
@@ -135,8 +143,11 @@ async def synthesize(
     model: str, body: SynthesizeRequest, request: Request, tenant: TenantId
 ) -> Response:
     """Synthesise a body from ``{sex, height_m?, weight_kg?, age?, <measurements>?}``, from
-    ``{sex, pca}`` or from ``{sex, seed}`` (synchronous). Values outside the model's supported
-    ranges answer 422 ``out_of_range`` naming the range (see ``GET /v1/models``)."""
+    ``{sex, pca}`` or from ``{sex, seed}`` (synchronous). Values outside the model's accepted
+    ranges answer 422 ``out_of_range`` naming the range (see ``GET /v1/models``: ``range``);
+    values beyond its ``training_range`` (or an unusual combination) give an extrapolated
+    body with warnings: the ``X-Bodyspace-Warnings`` header (a JSON array of strings) of a
+    GLB answer, ``warnings`` in a JSON one."""
     # The GLB answer costs ~2 ms of CPU: it runs on the event loop, without a thread hop (less
     # CPU per request and a lower p50 at 32 concurrent clients than the threadpool:
     # bench/synthesis_load.py). Loading a model (first use) and the JSON answer (measurements
@@ -145,9 +156,13 @@ async def synthesize(
         await run_in_threadpool(_warm_up, model)
     if _wants_json(request):
         return await run_in_threadpool(_synthesize_json, model, body)
-    V = synthesize_vertices(get_model(model), body)
+    V, warnings = synthesize_body(get_model(model), body)
     # the 483 kB buffer is sent as it is (no copy into bytes)
-    return Response(memoryview(_glb_encoder().encode_buffer(V)), media_type=GLB)
+    return Response(
+        memoryview(_glb_encoder().encode_buffer(V)),
+        media_type=GLB,
+        headers=warnings_header(warnings),
+    )
 
 
 _warm: set[str] = set()
@@ -167,19 +182,26 @@ def _synthesize_json(model: str, body: SynthesizeRequest) -> Response:
     from core.measure import measure
 
     m = get_model(model)
-    V = synthesize_vertices(m, body)
+    V, warnings = synthesize_body(m, body)
     density = m.space(body.sex).density
     meas = {
         k: (float(v) if math.isfinite(v) else None) for k, v in measure(V, density=density).items()
     }
-    out = {"vertices": V.tolist(), "faces": _template_faces().tolist(), "measurements": meas}
+    out = {
+        "vertices": V.tolist(),
+        "faces": _template_faces().tolist(),
+        "measurements": meas,
+        "warnings": warnings,
+    }
     return Response(json.dumps(out, separators=(",", ":")), media_type="application/json")
 
 
-def synthesize_vertices(m: Any, body: SynthesizeRequest) -> np.ndarray:
+def synthesize_body(m: Any, body: SynthesizeRequest) -> tuple[np.ndarray, list[str]]:
     """(13380, 3) body of ``m`` for a synthesis request (features, ``pca`` or ``seed``), after
     the checks the request needs beyond its schema (422 ``validation_error`` /
-    ``out_of_range``). Shared by ``POST /v1/models/{model}/synthesize`` and ``POST /v1/bodies``."""
+    ``out_of_range``), and the model's warnings where it extrapolates (empty inside its
+    training range). Shared by ``POST /v1/models/{model}/synthesize`` (route and
+    :mod:`service.fastpath`) and ``POST /v1/bodies``."""
     feats = _features(body)
     if body.pca is not None:
         if feats or body.seed is not None:
@@ -195,5 +217,6 @@ def synthesize_vertices(m: Any, body: SynthesizeRequest) -> np.ndarray:
             )  # fmt: skip
         if not all(math.isfinite(w) for w in body.pca):
             raise ApiError("validation_error", "pca weights must be finite numbers", field="pca")
-        return m.synthesize(body.sex, pca=np.asarray(body.pca, dtype=np.float64))
-    return m.synthesize(body.sex, feats or None, seed=body.seed)
+        return m.synthesize(body.sex, pca=np.asarray(body.pca, dtype=np.float64)), []
+    V = m.synthesize(body.sex, feats or None, seed=body.seed)
+    return V, m.range_warnings(body.sex, feats)

@@ -447,3 +447,22 @@ def test_bodies_with_database_blobs(db_blob_server):
                 == 0
             )
         assert c.get(f"/v1/bodies/{src['id']}").status_code == 404
+
+
+def test_extrapolated_body_carries_its_warnings(client):
+    """A stored body beyond the training range says so (metadata ``warnings``, the GLB's
+    ``X-Bodyspace-Warnings``); one inside it does not, and an edit out of the range does."""
+    import json
+
+    b = _create(client, sex="male", height_m=1.85, weight_kg=141.0)
+    (w,) = b["warnings"]
+    assert w.startswith("weight_kg=141 kg is beyond the model's training range")
+    r = client.get(f"/v1/bodies/{b['id']}")
+    assert r.status_code == 200 and json.loads(r.headers["x-bodyspace-warnings"]) == [w]
+    assert client.get(f"/v1/bodies/{b['id']}", headers=JSON).json()["warnings"] == [w]
+    ok = _create(client, sex="male", height_m=1.80, weight_kg=80.0)
+    assert ok["warnings"] == []
+    r = client.post(f"/v1/bodies/{ok['id']}/edit", json={"target": {"weight_kg": 150}})
+    assert r.status_code == 201, r.text
+    (w2,) = json.loads(r.headers["x-bodyspace-warnings"])
+    assert w2.startswith("weight_kg=150 kg is beyond")

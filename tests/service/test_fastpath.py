@@ -17,6 +17,8 @@ BODIES = [
     {"sex": "male", "height_m": 1.81, "weight_kg": 84, "age": 40},
     {"sex": "male", "seed": 11},
     {"sex": "female", "pca": [0.01, -0.02]},
+    {"sex": "male", "height_m": 1.85, "weight_kg": 141},  # extrapolated: a warnings header
+    {"sex": "female", "height_m": 1.40, "weight_kg": 107.8, "age": 70},
 ]
 
 
@@ -40,6 +42,9 @@ def test_short_path_answers_as_the_route(client, body):
     for h in ("content-type", "content-length"):
         assert fast.headers[h] == route.headers[h]
     assert set(fast.headers) == set(route.headers)
+    warned = fast.headers.get("x-bodyspace-warnings")
+    assert warned == route.headers.get("x-bodyspace-warnings")
+    assert (warned is not None) == (body.get("weight_kg", 0) > 100)
 
 
 @pytest.mark.parametrize(

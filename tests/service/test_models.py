@@ -146,3 +146,47 @@ def test_no_key_is_401(server):
         r = c.post(SYN, json={"sex": "female", "height_m": 1.7})
         assert r.status_code == 401
         assert r.json()["error"]["code"] == "missing_api_key"
+
+
+def test_the_141_kg_soldier_through_the_server(client):
+    """Issue 12: the held-out ANSUR II soldier (male, 1.85 m, 141 kg) got 422 (the model
+    stopped at 136 kg). Now: the body, with the warning in the GLB's header and the JSON."""
+    import json
+
+    body = {"sex": "male", "height_m": 1.85, "weight_kg": 141.0}
+    r = client.post(SYN, json=body)
+    assert r.status_code == 200, r.text
+    (w,) = json.loads(r.headers["x-bodyspace-warnings"])
+    assert w.startswith("weight_kg=141 kg is beyond the model's training range")
+    V = glb_vertices(r.content).astype(np.float64)
+    assert abs(V[:, 1].max() - V[:, 1].min() - 1.85) < 0.005
+    js = client.post(SYN, json=body, headers=JSON)
+    assert js.json()["warnings"] == [w]
+    assert abs(js.json()["measurements"]["weightkg"] - 141.0) < 0.02 * 141.0
+    np.testing.assert_allclose(_vertices(js), V, atol=1e-6)  # GLB floats are float32
+
+
+def test_no_warning_inside_the_training_range(client):
+    body = {"sex": "female", "height_m": 1.65, "weight_kg": 62.0, "age": 30}
+    r = client.post(SYN, json=body)
+    assert r.status_code == 200 and "x-bodyspace-warnings" not in r.headers
+    assert client.post(SYN, json=body, headers=JSON).json()["warnings"] == []
+
+
+@pytest.mark.parametrize(
+    ("body", "feature", "text"),
+    [
+        ({"sex": "female", "height_m": 0.95}, "height_m", "supported range 1–2.5 m"),
+        ({"sex": "male", "height_m": 2.6}, "height_m", "supported range 1–2.5 m"),
+        ({"sex": "male", "height_m": 1.8, "weight_kg": 30}, "weight_kg", "9.3 kg/m²"),
+        ({"sex": "male", "height_m": 1.8, "weight_kg": 270}, "weight_kg", "83.3 kg/m²"),
+        ({"sex": "female", "age": 12}, "age", "supported range 17–90 years"),
+        ({"sex": "female", "age": 95}, "age", "supported range 17–90 years"),
+    ],
+)
+def test_meaningless_bodies_are_refused_naming_the_range(client, body, feature, text):
+    r = client.post(SYN, json=body)
+    assert r.status_code == 422, r.text
+    err = r.json()["error"]
+    assert err["code"] == "out_of_range" and err["details"]["feature"] == feature
+    assert text in err["message"]
