@@ -1,0 +1,382 @@
+"""Benchmark on real-world-like cases the fitter's prior does not come from (issues 12 and 13).
+
+Each case is :func:`core.synth.scanner_outputs.make_case` — an off-model body (regional fat, BMI
+15–55, bone lengths, shoulders, neck/head posture) in a scanning-protocol posture, delivered the
+way scanner software does (closed hole-filled meshes with mitten hands and hair, raw scans with
+arms wound inward or clutter, clouds without normals, any units/up/facing). The case is written
+to a file (PLY; closed meshes with an odd seed as OBJ) and fitted through the CLI's code path
+(``service.cli.run_fit``: the real readers, frame detection, markerless fit or, with
+``--markers``, the marker fit with another team's marker convention).
+
+Recorded per case: outcome (``fitted`` / ``refused`` = a domain error such as "could not find a
+body" / ``exception``), the fit report's quality verdict, scan→fit median and p95 (exact point to
+fitted-surface distances), fit→scan mean with the fitted surface sampled **by area** (30 000
+points, so the dense face and hands do not dominate), correspondence error against the truth
+(mean, p95, all 13 380 vertices), per-part scan→fit p95 (scan points assigned to the part of
+their nearest fitted vertex), time (wall and CPU of the fit). The summary repeats issue 12's
+"Done when" lines; closed-vs-raw twins (``closed_lowres`` and ``raw`` of the same seed: one body)
+are compared vertex by vertex in the body's frame (mean over all vertices, and without the hands,
+which a closed mesh turns into mittens). Results go to ``bench/results/realworld-DATE[-markers]``
+(.txt table and .json) with the git commit.
+
+Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--jobs 1] [--kinds K1,K2]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as dt
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "bench" / "results"
+MM = 1000.0
+#: issue 12's targets (mm) and rate
+TARGETS = {"fit_rate": 0.95, "median": 2.0, "p95": 6.0, "fit_to_scan": 2.0, "twins": 3.0}
+
+
+def _commit() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
+        return out.stdout.strip() + ("-dirty" if dirty else "")
+    except OSError:
+        return "unknown"
+
+
+def area_samples(V: np.ndarray, F: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` points (n, 3) uniformly distributed by area on the triangle mesh (V, F)."""
+    rng = np.random.default_rng(seed)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    fi = rng.choice(len(F), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    return (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
+
+
+def surface_metrics(scan: Any, fit_V: np.ndarray, fit_F: np.ndarray) -> dict[str, Any]:
+    """scan→fit median/p95/mean, fit→scan (by area) mean/p95, per-part scan→fit p95 (mm)."""
+    from core.geometry import MeshDistance
+    from core.template import load_template
+
+    tpl = load_template()
+    rng = np.random.default_rng(0)
+    P = np.asarray(scan.V)
+    if len(P) > 300_000:
+        P = P[rng.choice(len(P), 300_000, replace=False)]
+    d = MeshDistance(fit_V, fit_F).distances(P)
+    S = area_samples(fit_V, fit_F, 30_000)
+    if scan.F is not None and len(scan.F):
+        back = MeshDistance(scan.V, scan.F).distances(S)
+    else:
+        back = cKDTree(scan.V).query(S)[0]
+    part = tpl.part[cKDTree(fit_V).query(P)[1]]
+    per_part = {}
+    for k, name in enumerate(tpl.part_names):
+        m = part == k
+        per_part[name] = float(np.percentile(d[m], 95) * MM) if m.sum() >= 20 else float("nan")
+    return {
+        "scan_to_fit_median_mm": float(np.median(d) * MM),
+        "scan_to_fit_p95_mm": float(np.percentile(d, 95) * MM),
+        "scan_to_fit_mean_mm": float(d.mean() * MM),
+        "fit_to_scan_mean_mm": float(back.mean() * MM),
+        "fit_to_scan_p95_mm": float(np.percentile(back, 95) * MM),
+        "part_scan_to_fit_p95_mm": per_part,
+    }
+
+
+def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -> dict[str, Any]:
+    """Make, write, fit and measure one case; never raises (failures are recorded)."""
+    from core.errors import BodyspaceError
+    from core.geometry import MeshDistance
+    from core.synth.scanner_outputs import make_case
+    from service.cli import run_fit
+
+    t0 = time.perf_counter()
+    case = make_case(seed, kind)
+    row: dict[str, Any] = {
+        "seed": seed,
+        "kind": kind,
+        "family": case.family,
+        "description": case.description,
+        "units": case.units,
+        "up": case.up,
+        "scan_points": len(case.V),
+        "make_s": time.perf_counter() - t0,
+        "markers": len(case.markers) if markers else 0,
+        "marker_convention": case.marker_info["convention"] if markers else None,
+    }
+    with tempfile.TemporaryDirectory(dir=keep_dir) as tmp:
+        ext = ".obj" if kind.startswith("closed") and seed % 2 else ".ply"
+        scan_path = case.write(Path(tmp) / f"{case.name}{ext}")
+        mk_path = case.write_markers(Path(tmp) / f"{case.name}.csv") if markers else None
+        c0, w0 = time.process_time(), time.perf_counter()
+        try:
+            scan, result, info = run_fit(scan_path, mk_path, quiet=True)
+        except BodyspaceError as e:
+            row.update(outcome="refused", error=f"{type(e).__name__}: {e}")
+        except Exception as e:  # recorded, the benchmark goes on
+            row.update(
+                outcome="exception",
+                error=f"{type(e).__name__}: {e}",
+                traceback=traceback.format_exc(limit=4),
+            )
+        else:
+            row["outcome"] = "fitted"
+        row["fit_wall_s"] = time.perf_counter() - w0
+        row["fit_cpu_s"] = time.process_time() - c0
+    if row["outcome"] != "fitted":
+        return row
+    rep = result.report
+    q = getattr(rep, "quality", None)
+    if q is not None:
+        row["quality"] = q.quality
+        row["quality_reasons"] = list(q.reasons)
+    row["warnings"] = list(rep.warnings)
+    row["frame"] = info["frame"]
+    row.update(surface_metrics(scan, result.vertices, np.asarray(result.faces, np.int64)))
+    truth = scan.frame.to_canonical(case.truth)
+    # frame sanity: the truth lies on the scan (hair and mittens aside)
+    if scan.F is not None and len(scan.F):
+        dt_ = MeshDistance(scan.V, scan.F, k=8).distances(truth)
+    else:
+        dt_ = cKDTree(scan.V).query(truth)[0]
+    row["truth_to_scan_median_mm"] = float(np.median(dt_) * MM)
+    e = np.linalg.norm(result.vertices - truth, axis=1)
+    row["corr_mean_mm"] = float(e.mean() * MM)
+    row["corr_p95_mm"] = float(np.percentile(e, 95) * MM)
+    # the fit in the generator's body frame (canonical metres of the case), for the twins
+    A = case.to_file
+    fit_file = scan.frame.to_file(result.vertices)
+    row["_fit_body"] = (fit_file - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+    return row
+
+
+def _run(args: tuple) -> dict[str, Any]:
+    try:
+        return run_case(*args)
+    except Exception as e:  # a case that cannot even be made
+        return {
+            "seed": args[0],
+            "kind": args[1],
+            "family": args[1],
+            "outcome": "exception",
+            "error": f"case generation: {type(e).__name__}: {e}",
+        }
+
+
+def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """closed_lowres vs raw fits of the same body: mean vertex distance (mm), all / no hands."""
+    from core.template import load_template
+
+    tpl = load_template()
+    hands = tpl.part_mask("hand_L") | tpl.part_mask("hand_R")
+    by = {(r["seed"], r["kind"]): r for r in rows}
+    out = []
+    for (seed, kind), r in sorted(by.items()):
+        if kind != "closed_lowres" or (seed, "raw") not in by:
+            continue
+        s = by[(seed, "raw")]
+        if "_fit_body" not in r or "_fit_body" not in s:
+            out.append({"seed": seed, "mean_mm": float("nan"), "no_hands_mm": float("nan")})
+            continue
+        d = np.linalg.norm(r["_fit_body"] - s["_fit_body"], axis=1) * MM
+        out.append(
+            {"seed": seed, "mean_mm": float(d.mean()), "no_hands_mm": float(d[~hands].mean())}
+        )
+    return out
+
+
+def _f(x: Any, fmt: str = "{:.1f}") -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else fmt.format(x)
+
+
+def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) -> list[str]:
+    """The table and the summary lines."""
+    lines = [
+        f"{'case':<20} {'outcome':<9} {'quality':<8} {'s2f med':>7} {'s2f p95':>7} "
+        f"{'f2s':>6} {'corr':>6} {'corr95':>6} {'worst part p95':<22} {'fit s':>6}  description"
+    ]
+    for r in rows:
+        pp = r.get("part_scan_to_fit_p95_mm") or {}
+        worst = max(((v, k) for k, v in pp.items() if np.isfinite(v)), default=None)
+        wp = f"{worst[1]} {worst[0]:.0f}" if worst else (r.get("error", "")[:40])
+        lines.append(
+            f"{r['kind'] + '-' + str(r['seed']):<20} {r['outcome']:<9} {r.get('quality', '-'):<8} "
+            f"{_f(r.get('scan_to_fit_median_mm')):>7} {_f(r.get('scan_to_fit_p95_mm')):>7} "
+            f"{_f(r.get('fit_to_scan_mean_mm')):>6} {_f(r.get('corr_mean_mm')):>6} "
+            f"{_f(r.get('corr_p95_mm')):>6} {wp:<22} {_f(r.get('fit_wall_s')):>6}  "
+            f"{r.get('description', '')}"
+        )
+    lines.append("")
+    lines.append(
+        f"{'family':<16} {'n':>3} {'fitted':>6} {'refused':>7} {'exc':>4} "
+        f"{'s2f med':>7} {'s2f p95':>7} {'f2s':>6} {'corr':>6}"
+    )
+    fams = sorted({r["family"] for r in rows})
+    for fam in fams:
+        rs = [r for r in rows if r["family"] == fam]
+        ok = [r for r in rs if r["outcome"] == "fitted"]
+
+        def avg(key: str, ok: list = ok) -> float:
+            return float(np.mean([r[key] for r in ok])) if ok else float("nan")
+
+        lines.append(
+            f"{fam:<16} {len(rs):>3} {len(ok):>6} "
+            f"{sum(r['outcome'] == 'refused' for r in rs):>7} "
+            f"{sum(r['outcome'] == 'exception' for r in rs):>4} "
+            f"{_f(avg('scan_to_fit_median_mm')):>7} {_f(avg('scan_to_fit_p95_mm')):>7} "
+            f"{_f(avg('fit_to_scan_mean_mm')):>6} {_f(avg('corr_mean_mm')):>6}"
+        )
+    ok = [r for r in rows if r["outcome"] == "fitted"]
+    n = len(rows)
+    rate = len(ok) / n if n else float("nan")
+
+    def mean(key: str) -> float:
+        return float(np.mean([r[key] for r in ok])) if ok else float("nan")
+
+    def mark(v: float, target: float, higher_ok: bool = False) -> str:
+        if not np.isfinite(v):
+            return "n/a"
+        return "met" if (v >= target if higher_ok else v <= target) else "NOT met"
+
+    med, p95, f2s = (
+        mean("scan_to_fit_median_mm"),
+        mean("scan_to_fit_p95_mm"),
+        mean("fit_to_scan_mean_mm"),
+    )
+    times = [r["fit_wall_s"] for r in rows if "fit_wall_s" in r]
+    cpus = [r["fit_cpu_s"] for r in rows if "fit_cpu_s" in r]
+    med_time = float(np.median(times)) if times else None
+    med_cpu = float(np.median(cpus)) if cpus else None
+    tw_ok = [t["mean_mm"] for t in tw if np.isfinite(t["mean_mm"])]
+    lines += [
+        "",
+        f"mode: {'marker fit (other teams conventions)' if markers else 'markerless'}",
+        f"fitted: {len(ok)}/{n} = {rate * 100:.0f} % (target >= 95 %: "
+        f"{mark(rate, TARGETS['fit_rate'], True)}); refused "
+        f"{sum(r['outcome'] == 'refused' for r in rows)}, exceptions "
+        f"{sum(r['outcome'] == 'exception' for r in rows)}",
+        f"scan->fit median, averaged over fitted cases: {_f(med, '{:.2f}')} mm "
+        f"(target <= 2.0: {mark(med, TARGETS['median'])})",
+        f"scan->fit p95, averaged: {_f(p95, '{:.2f}')} mm "
+        f"(target <= 6: {mark(p95, TARGETS['p95'])})",
+        f"fit->scan mean (fit sampled by area), averaged: {_f(f2s, '{:.2f}')} mm "
+        f"(target <= 2.0: {mark(f2s, TARGETS['fit_to_scan'])})",
+        f"correspondence to truth, mean averaged: {_f(mean('corr_mean_mm'), '{:.2f}')} mm, "
+        f"p95 averaged {_f(mean('corr_p95_mm'), '{:.2f}')} mm",
+        "closed-vs-raw twins (same body), mean vertex distance: "
+        + (
+            ", ".join(
+                f"seed {t['seed']}: {_f(t['mean_mm'])} ({_f(t['no_hands_mm'])} w/o hands)"
+                for t in tw
+            )
+            or "none"
+        )
+        + (
+            f"; worst {max(tw_ok):.1f} mm (target <= 3: {mark(max(tw_ok), TARGETS['twins'])}; "
+            f"{len(tw_ok)}/{len(tw)} pairs both fitted)"
+            if tw_ok
+            else ""
+        ),
+        "per-case scan->fit p95 <= 6 mm (no lost part): "
+        f"{sum(r['scan_to_fit_p95_mm'] <= 6.0 for r in ok)}/{len(ok)} fitted cases; "
+        "'good' verdicts with p95 > 6 mm: "
+        f"{sum(r.get('quality') == 'good' and r['scan_to_fit_p95_mm'] > 6.0 for r in ok)}",
+        f"fit time: median {_f(med_time)} s wall, {_f(med_cpu)} s CPU",
+    ]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cases", type=int, default=6, help="number of cases (>= 40 for a report)")
+    ap.add_argument("--markers", action="store_true", help="fit with the other-convention markers")
+    ap.add_argument("--jobs", type=int, default=1, help="processes (CPU is shared: default 1)")
+    ap.add_argument("--kinds", default="", help="only these kinds (comma-separated)")
+    ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
+    args = ap.parse_args(argv)
+    with contextlib.suppress(OSError):
+        os.nice(10)
+    from core.synth.scanner_outputs import KINDS, benchmark_cases
+
+    cases = benchmark_cases(args.cases)
+    if args.kinds:
+        want = set(args.kinds.split(","))
+        if not want <= set(KINDS):
+            ap.error(f"--kinds: unknown {sorted(want - set(KINDS))}; valid: {sorted(KINDS)}")
+        cases = [c for c in cases if c[1] in want]
+    todo = [(s, k, args.markers) for s, k in cases]
+    t0 = time.perf_counter()
+    commit = _commit()
+    print(
+        f"bench.realworld: {len(todo)} cases, commit {commit}, "
+        f"{'markers' if args.markers else 'markerless'}",
+        flush=True,
+    )
+    rows: list[dict[str, Any]] = []
+    if args.jobs > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(args.jobs) as pool:
+            for r in pool.imap(_run, todo):
+                rows.append(r)
+                print(f"  {r['kind']}-{r['seed']}: {r['outcome']}", flush=True)
+    else:
+        for t in todo:
+            r = _run(t)
+            rows.append(r)
+            print(
+                f"  {r['kind']}-{r['seed']}: {r['outcome']} "
+                f"{_f(r.get('scan_to_fit_p95_mm'))} mm p95 {r.get('error', '')[:120]}",
+                flush=True,
+            )
+    tw = twins(rows)
+    lines = report(rows, tw, args.markers)
+    lines.append(
+        f"commit {commit}; {len(todo)} cases in {time.perf_counter() - t0:.0f} s; "
+        f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC"
+    )
+    print("\n".join(lines))
+    if not args.no_save:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        stem = f"realworld-{dt.date.today():%Y-%m-%d}{'-markers' if args.markers else ''}"
+        (RESULTS / f"{stem}.txt").write_text("\n".join(lines) + "\n")
+        clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
+        from core.serialize import json_ready
+
+        (RESULTS / f"{stem}.json").write_text(
+            json.dumps(
+                json_ready(
+                    {"commit": commit, "markers": args.markers, "cases": clean, "twins": tw}
+                ),
+                indent=1,
+                allow_nan=False,
+            )
+        )
+        print(f"wrote bench/results/{stem}.txt and .json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
