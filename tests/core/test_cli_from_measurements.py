@@ -45,3 +45,20 @@ def test_from_measurements_errors(tmp_path):
                 "--out", tmp_path / "body.stl")  # fmt: skip
     assert_one_line_error(r, "unsupported extension")
     assert not out.exists()
+
+
+def test_from_measurements_accepts_the_synthesis_ranges(tmp_path):
+    """The CLI takes what synthesis takes: the 141 kg soldier and a 1.40 m BMI 55 woman give a
+    body and a warning (printed and in the report); a BMI of 90 is refused naming the range."""
+    out, rep = tmp_path / "body.ply", tmp_path / "report.json"
+    for sex, h, kg in (("male", 1.85, 141.0), ("female", 1.40, 107.8)):
+        r = run_cli("from-measurements", "--sex", sex, "--measure", f"stature={h}",
+                    "--measure", f"weightkg={kg}", "--out", out, "--report", rep)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        report = json.loads(rep.read_text())
+        assert any("beyond the model's training range" in w for w in report["warnings"])
+        assert "training range" in r.stdout + r.stderr
+        assert abs(np.ptp(read_mesh(out).V[:, 1]) - h) < 0.005
+    r = run_cli("from-measurements", "--sex", "male", "--measure", "stature=1.70",
+                "--measure", "weightkg=260", "--out", out)  # fmt: skip
+    assert_one_line_error(r, "body-mass index of 90.0", "10–80 kg/m²")

@@ -194,3 +194,20 @@ def test_markerless_body_in_wrong_units_is_refused_but_full_fit_is_not(client, s
     r = client.post("/v1/fits", json={"scan_id": ok["id"], "mode": "markerless"})
     assert r.status_code == 202, r.text
     client.delete(f"/v1/fits/{r.json()['id']}")
+
+
+def test_measurements_mode_takes_the_synthesis_ranges(client):
+    """The measurements fit mode accepts what synthesis accepts (a 1.40 m BMI 55 woman: a body,
+    the extrapolation in the report's warnings) and refuses a BMI of 90 before the job exists."""
+    body = {"mode": "measurements", "sex": "female",
+            "measurements": {"stature": 1.40, "weightkg": 107.8}}  # fmt: skip
+    r = client.post("/v1/fits", json=body)
+    assert r.status_code == 202, r.text
+    done = wait_state(client, r.json()["id"])
+    assert done["state"] == "succeeded", done
+    rep = client.get(f"/v1/fits/{done['id']}/result", params={"format": "json"}).json()
+    assert any("beyond the model's training range" in w for w in rep["warnings"])
+    assert abs(rep["matched"]["stature"]["residual"]) < 0.005
+    body["measurements"] = {"stature": 1.70, "weightkg": 260.0}
+    err = _check(client.post("/v1/fits", json=body), 422, "out_of_range")
+    assert "body-mass index of 90.0" in err["message"] and "10–80 kg/m²" in err["message"]
