@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 from service.blobs import BlobStore
 from service.db import aware
 from service.deps import SessionDep, StoreDep, TenantId, require_json
-from service.errors import ApiError
+from service.errors import ApiError, clip
 from service.models import Blob, Body, Fit, new_id
 from service.routes import _own, _page
 from service.schemas import (
@@ -471,8 +471,10 @@ def edit_body(
 
     src = _own(session, Body, body_id, tenant, "body")
     parts = load_template().part_names
-    keep = tuple(edit.keep) if edit.keep is not None else ("head", "hand_L", "hand_R")
-    bad = [p for p in keep if p not in parts]
+    keep = (
+        tuple(dict.fromkeys(edit.keep)) if edit.keep is not None else ("head", "hand_L", "hand_R")
+    )
+    bad = [clip(p) for p in keep if p not in parts]
     if bad:
         raise ApiError(
             "validation_error",

@@ -60,6 +60,15 @@ API_ERRORS: dict[str, tuple[int, str]] = {
 }
 
 
+ECHO_CHARS = 60  # characters of user input quoted in a message
+
+
+def clip(value: object, n: int = ECHO_CHARS) -> str:
+    """At most ``n`` characters of user input for an error message (``…`` marks a cut)."""
+    s = str(value)
+    return s if len(s) <= n else s[: n - 1] + "…"
+
+
 class ApiError(Exception):
     """An error answered with status and code from :data:`API_ERRORS`."""
 
@@ -100,7 +109,9 @@ def describe(exc: BaseException) -> dict[str, Any]:
         return {"code": exc.code, "message": exc.message, "details": _jsonable(exc.details)}
     if isinstance(exc, BodyspaceError):
         return {"code": exc.code, "message": exc.message, "details": _jsonable(exc.details)}
-    return {"code": "internal_error", "message": f"{type(exc).__name__}: {exc}", "details": {}}
+    # internal errors may carry paths or internal ids: the type only (the log has the rest)
+    msg = f"internal error ({type(exc).__name__}); the server log has the details"
+    return {"code": "internal_error", "message": msg, "details": {}}
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
@@ -133,9 +144,13 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = [
-            {"loc": [str(x) for x in e.get("loc", ())], "msg": e.get("msg"), "type": e.get("type")}
-            for e in exc.errors()
+        errors = [  # bounded: no input echoed, at most 10 errors, keys clipped
+            {
+                "loc": [clip(x) for x in e.get("loc", ())],
+                "msg": clip(e.get("msg"), 200),
+                "type": e.get("type"),
+            }
+            for e in exc.errors()[:10]
         ]
         missing = [e for e in errors if e["type"] == "missing"]
         if missing and len(missing) == len(errors):
@@ -148,6 +163,9 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        if isinstance(exc.__cause__, RecursionError):  # FastAPI's body parsing: too deep
+            msg = "the JSON body is nested too deeply"
+            return JSONResponse(error_body("validation_error", msg), 422)
         fallback = "bad_request" if exc.status_code < 500 else "internal_error"
         code = _HTTP_CODES.get(exc.status_code, fallback)
         return JSONResponse(error_body(code, str(exc.detail)), exc.status_code)

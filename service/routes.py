@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from service.blobs import BlobStore, sha256_file
 from service.db import aware, session_scope
 from service.deps import RunnerDep, SessionDep, SettingsDep, StoreDep, TenantId, require_json
-from service.errors import ApiError
+from service.errors import ApiError, clip
 from service.models import Blob, Fit, Scan, new_id, utcnow
 from service.schemas import (
     ErrorResponse,
@@ -136,7 +136,7 @@ def _fit_out(f: Fit) -> FitOut:
 def _own(session: Session, model: Any, id_: str, tenant: str, what: str) -> Any:
     row = session.get(model, id_)
     if row is None or row.tenant_id != tenant:
-        raise ApiError("not_found", f"no {what} with id {id_!r}", id=id_)
+        raise ApiError("not_found", f"no {what} with id {clip(id_)!r}", id=clip(id_))
     return row
 
 

@@ -360,18 +360,21 @@ class BodyEdit(BaseModel):
 
     delta: dict[str, FiniteNumber] = Field(
         default_factory=dict,
+        max_length=64,
         description="feature -> change (height_m m, weight_kg kg, age years, measurements m)",
     )
     target: dict[str, FiniteNumber] = Field(
         default_factory=dict,
+        max_length=64,
         description="feature -> absolute new value (turned into a change from the body's "
         "current features); a feature may not be in both `delta` and `target`",
     )
     keep: list[str] | None = Field(
         None,
-        description="template parts held in place (default head, hand_L, hand_R: face and "
-        "hands do not move; a height_m change shifts them rigidly with the body); [] for the "
-        "plain edit of the paper",
+        max_length=16,
+        description="template parts held in place, at most 16 (repeats count once; default "
+        "head, hand_L, hand_R: face and hands do not move; a height_m change shifts them "
+        "rigidly with the body); [] for the plain edit of the paper",
     )
 
 

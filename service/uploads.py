@@ -16,7 +16,7 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import Request
 
 from service.blobs import BlobStore
-from service.errors import ApiError
+from service.errors import ApiError, clip
 
 FIELD_LIMIT = 64 * 1024
 MAX_PARTS = 16  # parts (files and text fields) in one body
@@ -70,10 +70,6 @@ def safe_filename(name: str) -> str:
         stem, dot, ext = base.rpartition(".")
         base = stem[:190] + dot + ext[:9] if dot and len(ext) <= 9 else base[:200]
     return base
-
-
-def _clip(s: str, n: int = 60) -> str:
-    return s if len(s) <= n else s[: n - 1] + "…"
 
 
 async def _drain(request: Request, budget: int) -> None:
@@ -149,9 +145,9 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
             raise _RefusedError(
                 ApiError(
                     "validation_error",
-                    f"unexpected file part {_clip(name)!r}; files go in "
+                    f"unexpected file part {clip(name)!r}; files go in "
                     f"{', '.join(repr(k) for k in file_limits)}",
-                    field=_clip(name),
+                    field=clip(name),
                 )
             )
         if filename is not None:
@@ -226,11 +222,11 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
             out["fh"].close()
         form.cleanup()
         await _drain(request, DRAIN_LIMIT)
-        what = "the body" if e.name == "body" else f"the {_clip(e.name)!r} part"
+        what = "the body" if e.name == "body" else f"the {clip(e.name)!r} part"
         raise ApiError(
             "upload_too_large",
             f"{what} is larger than its limit of {e.limit:,} bytes",
-            field=_clip(e.name),
+            field=clip(e.name),
             limit_bytes=e.limit,
         ) from None
     except ApiError:
@@ -240,5 +236,5 @@ async def parse_multipart(request: Request, store: BlobStore, file_limits: dict[
         if out["fh"] is not None:
             out["fh"].close()
         form.cleanup()
-        raise ApiError("bad_request", f"malformed multipart body: {_clip(str(e))}") from None
+        raise ApiError("bad_request", f"malformed multipart body: {clip(str(e))}") from None
     return form

@@ -223,3 +223,62 @@ def test_upload_filename_sanitised(client, sim):
     r, _ = _chunked_post(client, parts)
     assert r.status_code == 201, r.text
     assert r.json()["filename"] == "evilname.ply"
+
+
+# ----------------------------------------------------------------------------- item 8: hygiene
+
+
+def _deep(n: int) -> str:
+    return "[" * n + "]" * n
+
+
+def test_markers_file_nested_10000_deep_is_422(client, sim):
+    files = {
+        "scan": ("scan.ply", sim.scan.read_bytes(), "application/octet-stream"),
+        "markers": ("m.json", ('{"Vertex": ' + _deep(10_000) + "}").encode(), "application/json"),
+    }
+    r = client.post("/v1/scans", files=files)
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["code"] == "invalid_markers"
+
+
+@pytest.mark.parametrize(
+    ("path", "body"),
+    [
+        ("/v1/fits", '{"mode": "markers_only", "markers": {"Vertex": ' + _deep(10_000) + "}}"),
+        ("/v1/models/default/synthesize", '{"sex": "female", "pca": ' + _deep(10_000) + "}"),
+        ("/v1/bodies", _deep(10_000)),
+    ],
+)
+def test_json_body_nested_10000_deep_is_422(client, path, body):
+    r = client.post(path, content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["code"] == "validation_error"
+
+
+def test_validation_errors_do_not_echo_large_input(client):
+    key = "k" * 500_000
+    body = '{"mode": "markers_only", "markers": {"' + key + '": [0, 1, "x"]}}'
+    r = client.post("/v1/fits", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert len(r.content) < 4_000
+
+
+def test_edit_keep_list_is_bounded(client):
+    r = client.post("/v1/bodies", json={"sex": "female", "height_m": 1.7, "weight_kg": 65},
+                    headers={"accept": "application/json"})  # fmt: skip
+    assert r.status_code == 201, r.text
+    body_id = r.json()["id"]
+    edit = {"delta": {"weight_kg": 5}, "keep": ["head"] * 100_000}
+    r = client.post(f"/v1/bodies/{body_id}/edit", json=edit, headers={"accept": "application/json"})
+    assert r.status_code == 422, r.text[:500]
+    assert len(r.content) < 4_000
+    r = client.post(f"/v1/bodies/{body_id}/edit", json={"delta": {"weight_kg": 5},
+                    "keep": ["head", "head"]}, headers={"accept": "application/json"})  # fmt: skip
+    assert r.status_code == 201, r.text[:500]
+    assert r.json()["params"]["keep"] == ["head"]
+
+
+def test_unknown_id_is_not_echoed_whole(client):
+    r = client.get("/v1/scans/" + "x" * 5_000)
+    assert r.status_code == 404 and len(r.content) < 1_000
