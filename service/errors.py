@@ -69,6 +69,19 @@ def clip(value: object, n: int = ECHO_CHARS) -> str:
     return s if len(s) <= n else s[: n - 1] + "…"
 
 
+#: codes of failed fits made by the job runner itself (not by ``core``) -> default message.
+JOB_ERRORS: dict[str, str] = {
+    "time_limit_exceeded": "the fit exceeded the time limit",
+    "too_many_attempts": "the job was started too many times without finishing",
+    "internal_error": "internal error",
+}
+
+
+def job_error(code: str, message: str | None = None) -> dict[str, Any]:
+    """The stored error of a failed fit, for a code of :data:`JOB_ERRORS`."""
+    return {"code": code, "message": message or JOB_ERRORS[code], "details": {}}
+
+
 class ApiError(Exception):
     """An error answered with status and code from :data:`API_ERRORS`."""
 
@@ -110,8 +123,9 @@ def describe(exc: BaseException) -> dict[str, Any]:
     if isinstance(exc, BodyspaceError):
         return {"code": exc.code, "message": exc.message, "details": _jsonable(exc.details)}
     # internal errors may carry paths or internal ids: the type only (the log has the rest)
-    msg = f"internal error ({type(exc).__name__}); the server log has the details"
-    return {"code": "internal_error", "message": msg, "details": {}}
+    return job_error(
+        "internal_error", f"internal error ({type(exc).__name__}); the server log has the details"
+    )
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:

@@ -26,7 +26,7 @@ from core.errors import BodyspaceError
 from core.serialize import json_ready
 from service.blobs import BlobStore, make_store, sha256_file
 from service.db import session_scope
-from service.errors import describe
+from service.errors import describe, job_error
 from service.models import Blob, Fit, Scan, utcnow
 from service.settings import Settings, get_settings
 
@@ -269,12 +269,11 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             task_id,
             settings,
             state="failed",
-            error={
-                "code": "too_many_attempts",
-                "message": f"the job was started {row.attempts - 1} times without finishing "
+            error=job_error(
+                "too_many_attempts",
+                f"the job was started {row.attempts - 1} times without finishing "
                 "(its worker was lost each time); not retried again",
-                "details": {},
-            },
+            ),
         )
         return "failed"
     store = make_store(settings)
@@ -343,7 +342,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
         except FitCancelled:
             if timed_out:
                 msg = f"the fit exceeded the time limit of {limit:g} s"
-                err = {"code": "time_limit_exceeded", "message": msg, "details": {}}
+                err = job_error("time_limit_exceeded", msg)
                 _finish(fit_id, task_id, settings, state="failed", error=err)
                 return "failed"
             log.info("fit %s: lost its claim (deleted or taken over): abandoned", fit_id)
@@ -356,7 +355,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
         except Exception as e:
             if type(e).__name__ == "SoftTimeLimitExceeded":
                 msg = f"the fit exceeded the time limit of {limit:g} s"
-                err = {"code": "time_limit_exceeded", "message": msg, "details": {}}
+                err = job_error("time_limit_exceeded", msg)
             else:
                 log.exception("fit %s raised", fit_id)
                 err = describe(e)
