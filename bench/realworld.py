@@ -317,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
     args = ap.parse_args(argv)
     with contextlib.suppress(OSError):
-        os.nice(10)
+        os.nice(max(0, 10 - os.nice(0)))  # niceness 10 in all, also when started with nice
     from core.synth.scanner_outputs import KINDS, benchmark_cases
 
     cases = benchmark_cases(args.cases)

@@ -13,11 +13,11 @@ Decisions
   max(4 mm, 0.4 voxel) (a mitten: sub-voxel fingers stay solid) and closed morphologically with a
   ball of 10–14 mm, at least two voxels (mitten hands, fused fingers), hair is added as solid
   volume, the soles are cut flat (3–8 mm above the floor) or a floor plate (10 mm, at least two
-  voxels thick) reaching 8–15 cm around the feet is added, cavities are filled, and the surface is
-  extracted by marching cubes (scikit-image, BSD) on a signed distance field that is exact near the
-  original surface (distances to 1.5 mm surface samples) and an EDT distance where the volume was
-  edited, truncated at ±1.5 voxels and smoothed by a Gaussian of 0.5 voxel. Only the largest
-  component is kept (scanner software does), the winding is outward. Voxel 5–7 mm → 40–90 k
+  voxels thick; a disc reaching 8–15 cm beyond the feet) is added, cavities are filled, and the
+  surface is extracted by marching cubes (scikit-image, BSD) on a signed distance field that is
+  exact near the original surface (distances to 1.5 mm surface samples) and an EDT distance where
+  the volume was edited, truncated at ±1.5 voxels and smoothed by a Gaussian of 0.5 voxel. Only the
+  largest component is kept (scanner software does), the winding is outward. Voxel 5–7 mm → 40–90 k
   vertices; 10–14 mm → the 8–20 k of decimated booth-scanner meshes. Every edge is shared by exactly
   two faces (tested).
 - **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
@@ -304,8 +304,10 @@ def closed_mesh(
         feet = V[V[:, 1] < 0.03]
         j0, j1 = np.searchsorted(axes[1], [-max(0.01, 2.0 * h), 0.0])
         XZ = np.stack(np.meshgrid(axes[0], axes[2], indexing="ij"), -1).reshape(-1, 2)
-        d = cKDTree(feet[:, [0, 2]]).query(XZ)[0].reshape(shape[0], shape[2])
-        occ[:, j0:j1, :] |= (d < reach)[:, None, :]
+        c = feet[:, [0, 2]].mean(axis=0)
+        radius = np.linalg.norm(feet[:, [0, 2]] - c, axis=1).max() + reach
+        d = np.linalg.norm(XZ - c, axis=1).reshape(shape[0], shape[2])
+        occ[:, j0:j1, :] |= (d < radius)[:, None, :]
         info["plate_reach_m"] = reach
     occ = ndimage.binary_fill_holes(occ)
     # signed distance: exact near the untouched surface, EDT where the volume was edited
