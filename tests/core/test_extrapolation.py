@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from core.shapespace import OutOfRangeError, body_height, default_model
+from core.shapespace.features import MAX_MAHALANOBIS
 from core.template import load_template
 
 ANSUR_COPIES = [
@@ -76,6 +77,8 @@ def test_civilian_extremes_give_plausible_bodies(sex):
     L0 = np.linalg.norm(V0[E[:, 0]] - V0[E[:, 1]], axis=1)
     long = L0 > 1e-3
     feet = [tpl.part_mask(p) for p in ("foot_L", "foot_R")]
+    fm = m.space(sex).features
+    (hlo, hhi), (wlo, whi) = fm.ranges["height_m"], fm.ranges["weight_kg"]
     n_warned = 0
     for h in np.linspace(1.40, 2.05, 6):
         for bmi in np.linspace(15.0, 55.0, 6):
@@ -91,7 +94,10 @@ def test_civilian_extremes_give_plausible_bodies(sex):
             r = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)[long] / L0[long]
             lo, hi = np.percentile(r, [0.1, 99.9])
             assert lo > 0.2 and hi < 3.0, (h, bmi, lo, hi)
-            n_warned += bool(m.range_warnings(sex, f))
+            inside = hlo <= h <= hhi and wlo <= f["weight_kg"] <= whi
+            inside = inside and fm.mahalanobis(f) <= MAX_MAHALANOBIS
+            assert bool(m.range_warnings(sex, f)) == (not inside), (h, bmi)
+            n_warned += not inside
     assert 10 < n_warned < 36  # the grid's middle is inside the training range
 
 
@@ -99,8 +105,6 @@ def test_civilian_extremes_give_plausible_bodies(sex):
 def test_warnings_exactly_outside_the_training_range(sex):
     """No warning inside the training range (each feature inside ``ranges``, the combination
     within MAX_MAHALANOBIS), one naming the feature beyond it."""
-    from core.shapespace.features import MAX_MAHALANOBIS
-
     m = default_model()
     fm = m.space(sex).features
     (hlo, hhi), (wlo, whi) = fm.ranges["height_m"], fm.ranges["weight_kg"]
