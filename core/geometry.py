@@ -95,3 +95,43 @@ class MeshDistance:
         best = np.full(q, np.inf)
         np.minimum.at(best, qi, d)
         return best
+
+
+def winding_number(
+    V: np.ndarray, F: np.ndarray, P: np.ndarray, *, chunk: int = 32, dtype: type = np.float64
+) -> np.ndarray:
+    """Generalised winding number of points ``P`` w.r.t. the triangle mesh ``(V, F)``.
+
+    Sum of the signed solid angles of the triangles seen from each point over 4π (Van Oosterom
+    and Strackee's formula; Jacobson et al. 2013): ~1 inside a closed outward-oriented mesh,
+    ~0 outside, smoothly in between across holes.
+
+    Parameters
+    ----------
+    V : (n, 3) vertices. F : (m, 3) triangles (counter-clockwise seen from outside).
+    P : (k, 3) query points. chunk : points per vectorised block (memory ~ chunk x m x 9 values).
+    dtype : float type of the solid angles (``np.float32``: half the time; ~1e-5 error away
+        from the surface).
+
+    Returns
+    -------
+    (k,) float64 winding numbers.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    P = np.asarray(P, dtype=np.float64)
+    T = V[np.asarray(F)].astype(dtype)  # (m, 3, 3)
+    P = P.astype(dtype)
+    out = np.empty(len(P))
+    for s in range(0, len(P), chunk):
+        D = T[None] - P[s : s + chunk, None, None, :]  # (c, m, 3 corners, 3)
+        a, b, c = D[:, :, 0], D[:, :, 1], D[:, :, 2]
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        det = np.einsum("...i,...i->...", a, np.cross(b, c))
+        den = (
+            la * lb * lc
+            + np.einsum("...i,...i->...", a, b) * lc
+            + np.einsum("...i,...i->...", b, c) * la
+            + np.einsum("...i,...i->...", c, a) * lb
+        )
+        out[s : s + chunk] = np.arctan2(det, den).sum(axis=1, dtype=np.float64) / (2.0 * np.pi)
+    return out

@@ -239,6 +239,7 @@ def pose_body(
     *,
     rig: Rig | None = None,
     joints: np.ndarray | None = None,
+    influences: int | None = None,
 ) -> np.ndarray:
     """Pose a body in template order by linear blend skinning with the standard rig.
 
@@ -251,6 +252,8 @@ def pose_body(
     rig : the rig (default :func:`load_rig`).
     joints : (J, 3) rest joint positions of this body, metres; default
         ``joint_positions(V)`` (the body's own joints).
+    influences : ``4``: the skin of a glTF file (:meth:`Rig.skin_top4`, what a viewer poses);
+        None (default): every weight of the rig (up to 9 bones per vertex).
 
     Returns
     -------
@@ -261,7 +264,15 @@ def pose_body(
     if joints is None:
         joints = joint_positions(V, rig=rig)
     R, t = bone_transforms(rotations, joints, rig=rig)
-    r, c, w = rig.skin_rows, rig.skin_cols, rig.skin_vals
+    if influences is None:
+        r, c, w = rig.skin_rows, rig.skin_cols, rig.skin_vals
+    elif influences == 4:
+        idx, w4 = rig.skin_top4()
+        keep = w4.ravel() > 0
+        r = np.repeat(np.arange(len(V)), 4)[keep]
+        c, w = idx.ravel().astype(np.int64)[keep], w4.ravel().astype(np.float64)[keep]
+    else:
+        raise ValueError(f"influences must be None or 4, got {influences!r}")
     moved = np.einsum("eab,eb->ea", R[c], V[r]) + t[c]  # each (vertex, bone) pair
     out = np.empty_like(V)
     for k in range(3):

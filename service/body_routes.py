@@ -36,6 +36,7 @@ from service.schemas import (
     BodyMorph,
     BodyOut,
     BodyPage,
+    BodyPose,
     BodySource,
     ErrorResponse,
     MeasurementValue,
@@ -128,14 +129,17 @@ def _store_body(
     params: dict[str, Any],
     fit_id: str | None = None,
     derived_from: str | None = None,
+    features: dict[str, float] | None = None,
 ) -> Body:
-    """Write the vertices blob, then the rows (one transaction); the blob goes if the rows fail."""
+    """Write the vertices blob, then the rows (one transaction); the blob goes if the rows fail.
+    ``features`` default to the model's features of ``V``."""
     from service.blobs import sha256_file
 
     body_id = new_id("bdy")
     prefix = _blob_prefix(tenant, body_id, fit_id)
     key = f"{prefix}/vertices.npy"
-    features = _features_of(model, sex, V)
+    if features is None:
+        features = _features_of(model, sex, V)
     tmp = store.temp_file(".npy")
     try:
         with open(tmp, "wb") as f:
@@ -380,12 +384,35 @@ def list_bodies(
     "/bodies/{body_id}", response_class=Response, responses={200: MESH_RESPONSE}, tags=["bodies"]
 )
 def get_body(
-    body_id: str, request: Request, tenant: TenantId, session: SessionDep, store: StoreDep
+    body_id: str,
+    request: Request,
+    tenant: TenantId,
+    session: SessionDep,
+    store: StoreDep,
+    rig: Annotated[
+        bool,
+        Query(
+            description="a skinned GLB: the standard rig's 163 joints placed on this body, "
+            "inverse bind matrices, 4 skin weights per vertex (always GLB)"
+        ),
+    ] = False,
 ) -> Response:
     """A body's mesh: GLB, or with ``Accept: application/json`` its metadata, vertices and
-    faces."""
+    faces; ``?rig=true``: a skinned GLB that poses in any glTF viewer (a joint node's rotation
+    is the rig's local rotation: the bind pose has none)."""
     b = _own(session, Body, body_id, tenant, "body")
-    return _mesh_response(request, b, _load_vertices(store, b.blob_key))
+    V = _load_vertices(store, b.blob_key)
+    if rig:
+        from core.transfer.rig import rig_glb
+
+        if b.source == "pose":
+            raise ApiError(
+                "validation_error",
+                "this body is posed; rig the body it was posed from (derived_from)",
+                field="rig",
+            )
+        return Response(rig_glb(V), media_type=GLB)
+    return _mesh_response(request, b, V)
 
 
 @router.get("/bodies/{body_id}/measurements", response_model=BodyMeasurements, tags=["bodies"])
@@ -470,6 +497,13 @@ def edit_body(
     from core.template import load_template
 
     src = _own(session, Body, body_id, tenant, "body")
+    if src.source == "pose":
+        raise ApiError(
+            "validation_error",
+            "a posed body cannot be edited (the shape model is in the rest pose): edit the body "
+            "it was posed from (derived_from), then pose the result",
+            field="body_id",
+        )
     parts = load_template().part_names
     keep = (
         tuple(dict.fromkeys(edit.keep)) if edit.keep is not None else ("head", "hand_L", "hand_R")
@@ -494,6 +528,55 @@ def edit_body(
         params=params, fit_id=src.fit_id, derived_from=src.id,
     )  # fmt: skip
     return _mesh_response(request, row, V2, 201, Location=f"/v1/bodies/{row.id}")
+
+
+@router.post(
+    "/bodies/{body_id}/pose",
+    status_code=201,
+    response_class=Response,
+    dependencies=[Depends(require_json)],
+    responses={
+        201: MESH_RESPONSE,
+        415: {"model": ErrorResponse, "description": "not application/json"},
+    },
+    tags=["bodies"],
+)
+def create_posed_body(
+    body_id: str,
+    req: BodyPose,
+    request: Request,
+    tenant: TenantId,
+    session: SessionDep,
+    store: StoreDep,
+) -> Response:
+    """Pose a body (``{"posture": "seated"}`` and/or ``{"rotations": {bone: [x, y, z]}}``) by
+    linear blend skinning with the standard rig on the body's own joints and the skin of its
+    rigged GLB (what a viewer shows), floor at y = 0. The result is a new stored body (``201``,
+    ``Location``, ``source`` ``pose``, ``derived_from``; its features are those of the rest
+    body), answered as GLB or, with ``Accept: application/json``, metadata + vertices + faces."""
+    from core.transfer.rig import pose, posture, rotations_from_vectors
+
+    src = _own(session, Body, body_id, tenant, "body")
+    if src.source == "pose":
+        raise ApiError(
+            "validation_error",
+            "this body is already posed; pose the body it was posed from (derived_from)",
+            field="body_id",
+        )
+    if req.posture is None and not req.rotations:
+        raise ApiError("validation_error", "give a posture and/or rotations", field="posture")
+    try:
+        rot = posture(req.posture) if req.posture else {}
+        rot.update(rotations_from_vectors(req.rotations))
+    except ValueError as e:
+        raise ApiError("validation_error", str(e), field="rotations") from None
+    V = pose(_load_vertices(store, src.blob_key), rot)
+    params: dict[str, Any] = {"posture": req.posture, "rotations": req.rotations}
+    row = _store_body(
+        session, store, tenant=tenant, V=V, model=src.model, sex=src.sex, source="pose",
+        params=params, fit_id=src.fit_id, derived_from=src.id, features=src.features or {},
+    )  # fmt: skip
+    return _mesh_response(request, row, V, 201, Location=f"/v1/bodies/{row.id}")
 
 
 @router.delete("/bodies/{body_id}", status_code=204, tags=["bodies"])

@@ -602,6 +602,98 @@ def register_morph(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_morph)
 
 
+# --------------------------------------------------------------------------- `rig`, `pose`
+
+
+def _cmd_rig(args: argparse.Namespace) -> int:
+    from core.io.writers import atomic_write
+    from core.shapespace.build import read_body
+    from core.transfer.rig import rig_glb
+
+    body = _check_in_path(Path(args.body), "body")
+    out = Path(args.out)
+    if out.suffix.lower() != ".glb":
+        raise CliError(f"--out must be a .glb file, got {out.name!r}")
+    if not out.parent.is_dir():
+        raise CliError(f"the folder of --out does not exist: {out.parent}")
+    atomic_write(out, rig_glb(read_body(body), method=args.joints))
+    if not args.quiet:
+        print(f"wrote {out}: {body.name} with the standard rig (163 joints, {args.joints})")
+    return 0
+
+
+def _cmd_pose(args: argparse.Namespace) -> int:
+    from core.io import write_mesh
+    from core.shapespace.build import read_body
+    from core.template import load_template
+    from core.transfer.rig import pose, posture, rotations_from_vectors
+
+    body = _check_in_path(Path(args.body), "body")
+    out = Path(args.out)
+    if out.suffix.lower() not in (".ply", ".obj", ".glb"):
+        raise CliError(f"--out must end in .ply, .obj or .glb, got {out.name!r}")
+    if not out.parent.is_dir():
+        raise CliError(f"the folder of --out does not exist: {out.parent}")
+    if args.posture is None and args.rotations is None:
+        raise CliError("give --posture NAME and/or --rotations R.json")
+    rot = posture(args.posture) if args.posture else {}
+    if args.rotations is not None:
+        path = _check_in_path(Path(args.rotations), "rotations file")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise CliError(f"rotations file {str(path)!r} is not valid JSON: {e}") from None
+        if not isinstance(data, dict):
+            raise CliError("the rotations file must hold {bone: [x, y, z] radians}")
+        try:
+            rot.update(rotations_from_vectors(data))
+        except ValueError as e:
+            raise CliError(str(e)) from None
+    write_mesh(out, pose(read_body(body), rot), load_template().F)
+    if not args.quiet:
+        print(f"wrote {out}: {body.name} posed ({args.posture or 'rotations'})")
+    return 0
+
+
+JOINT_METHODS = ("regressor", "markers")  # = core.transfer.rig's (not imported: fast --help)
+POSTURE_NAMES = ("standing", "seated", "driving", "reach")
+
+
+def register_rig(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "rig",
+        help="a skinned GLB of a body (the standard rig's joints placed on it)",
+        description="A body in template vertex order (*.ply, *.obj, *.npz with 'vertices') as a "
+        "GLB with a skin: 163 joints of the MakeHuman standard rig placed from the body's own "
+        "vertices, inverse bind matrices, 4 skin weights per vertex.",
+    )
+    p.add_argument("body", metavar="BODY")
+    p.add_argument("--out", required=True, metavar="R.glb")
+    p.add_argument(
+        "--joints", choices=JOINT_METHODS, default="regressor",
+        help="joint placement: the rig's vertex-group regression (default, measured better) or "
+        "a similarity fitted to each joint's surface markers",
+    )  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_rig)
+
+    p = subparsers.add_parser(
+        "pose",
+        help="pose a body: a named posture and/or bone rotations",
+        description="Pose a body in template vertex order by linear blend skinning with the "
+        "standard rig on its own joints; floor at y = 0.",
+    )
+    p.add_argument("body", metavar="BODY")
+    p.add_argument("--posture", choices=POSTURE_NAMES, help="a named posture")
+    p.add_argument(
+        "--rotations", metavar="R.json",
+        help="{bone: [x, y, z]} rotation vectors (radians, template axes), after the posture",
+    )  # fmt: skip
+    p.add_argument("--out", required=True, metavar="OUT", help=".ply, .obj or .glb")
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_pose)
+
+
 # --------------------------------------------------------------------------- parser, main
 
 BUILTIN_COMMANDS: list[Registrar] = [
@@ -610,6 +702,7 @@ BUILTIN_COMMANDS: list[Registrar] = [
     register_build_model,
     register_from_measurements,
     register_morph,
+    register_rig,
 ]
 
 

@@ -333,6 +333,31 @@ class BodyCreate(SynthesizeRequest):
     )
 
 
+Posture = Literal["standing", "seated", "driving", "reach"]
+
+
+class BodyPose(BaseModel):
+    """Pose a body with the template's standard rig (MakeHuman, 163 bones) carried to it: a named
+    posture and/or bone rotations (rotation vectors: axis x angle in radians, in the template's
+    axes, about the bone's joint, composed along the bone chain; they override the posture's
+    rotation of the same bone)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {"posture": "seated"},
+                {"rotations": {"upperleg01.L": [-1.2, 0, 0], "lowerleg01.L": [1.0, 0, 0]}},
+            ]
+        },
+    )
+
+    posture: Posture | None = Field(None, description="a named posture")
+    rotations: dict[str, list[float]] = Field(
+        default_factory=dict, description="bone name -> rotation vector [x, y, z] (radians)"
+    )
+
+
 class MorphRequest(BaseModel):
     """Bodies to put in one GLB: the first as the mesh, one morph target per other body."""
 

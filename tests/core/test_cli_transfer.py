@@ -56,3 +56,38 @@ def test_morph_errors(tmp_path):
     bad = tmp_path / "small.ply"
     write_ply(bad, np.zeros((10, 3)), None)
     assert_one_line_error(run_cli("morph", a, bad, "--out", tmp_path / "m.glb"), "13380")
+
+
+def test_rig_and_pose(tmp_path):
+    import json
+
+    from core.transfer.rig import JOINT_METHODS, POSTURES, pose, posture
+    from service import cli
+
+    assert JOINT_METHODS == cli.JOINT_METHODS
+    assert tuple(POSTURES) == cli.POSTURE_NAMES
+    ((a, _),) = _bodies(tmp_path, 1)
+    out = tmp_path / "r.glb"
+    r = run_cli("rig", a, "--out", out)
+    assert r.returncode == 0, r.stderr
+    report = validate_glb(out)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, _ = glb_parts(out.read_bytes())
+    assert len(doc["skins"][0]["joints"]) == 163
+
+    rot = tmp_path / "rot.json"
+    rot.write_text(json.dumps({"lowerleg01.L": [0.5, 0, 0]}))
+    p = tmp_path / "p.ply"
+    r = run_cli("pose", a, "--posture", "seated", "--rotations", rot, "--out", p)
+    assert r.returncode == 0, r.stderr
+    want = posture("seated")
+    from core.rig import axis_angle
+
+    want["lowerleg01.L"] = axis_angle([1, 0, 0], 0.5)
+    Va32 = read_mesh(a).V
+    np.testing.assert_allclose(read_mesh(p).V, pose(Va32, want), atol=1e-9)
+
+    assert_one_line_error(run_cli("pose", a, "--out", p), "--posture")
+    rot.write_text(json.dumps({"nosuchbone": [0, 0, 1]}))
+    assert_one_line_error(run_cli("pose", a, "--rotations", rot, "--out", p), "nosuchbone")
+    assert_one_line_error(run_cli("rig", a, "--out", tmp_path / "r.ply"), ".glb")
