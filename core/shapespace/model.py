@@ -193,8 +193,12 @@ class ShapeModel:
             V = to_model_frame(V, s.pca.mean.reshape(-1, 3))[0]
         return s.pca.project(V)
 
-    def reconstruct(self, sex: str, weights: np.ndarray, *, check: bool = True) -> np.ndarray:
-        """(13380, 3) body from PCA weights (metres), standing on the floor."""
+    def reconstruct(
+        self, sex: str, weights: np.ndarray, *, check: bool = True, symmetrize: float = 0.0
+    ) -> np.ndarray:
+        """(13380, 3) body from PCA weights (metres), standing on the floor; ``symmetrize``
+        in [0, 1] moves it that far towards its left-right symmetric part (the extrapolation
+        correction, :meth:`correction`)."""
         s = self.space(sex)
         w = np.asarray(weights, dtype=np.float64).ravel()
         if check and w.size <= s.pca.k:
@@ -208,8 +212,15 @@ class ShapeModel:
                     supported=[-MAX_SD * float(s.pca.sd[i]), MAX_SD * float(s.pca.sd[i])],
                 )  # fmt: skip
         V = s.pca.reconstruct(w)
+        if symmetrize > 0.0:
+            V += symmetrize * (0.5 * (V[_mirror()] * np.array([-1.0, 1.0, 1.0]) - V))
         V[:, 1] -= V[:, 1].min()
         return V
+
+    def correction(self, sex: str, features: dict[str, float] | None) -> float:
+        """Strength in [0, 1] of the extrapolation corrections for ``features`` (smoothstep of
+        their Mahalanobis distance from :data:`CORRECT_FROM` to :data:`CORRECT_FULL`)."""
+        return _gate(self.space(sex).features.mahalanobis(features)) if features else 0.0
 
     def synthesize(
         self,
@@ -266,7 +277,7 @@ class ShapeModel:
             rng = np.random.default_rng(seed)
             sd = s.features.residual_sd if features else s.pca.sd
             w = w + rng.normal(size=s.pca.k) * sd
-        t = _gate(s.features.mahalanobis(features)) if features else 0.0
+        t = self.correction(sex, features)
         height = float(features["height_m"]) if exact_height and "height_m" in features else None
         V = self._finish(sex, w, t, height)
         if t > 0.0 and "weight_kg" in features:
@@ -276,10 +287,7 @@ class ShapeModel:
     def _finish(self, sex: str, w: np.ndarray, t: float, height: float | None) -> np.ndarray:
         """Body of weights ``w``: symmetrised by ``t`` (extrapolation), scaled about the floor
         to ``height`` (when given), standing on the floor."""
-        V = self.reconstruct(sex, w, check=False)
-        if t > 0.0:
-            V += t * (0.5 * (V[_mirror()] * np.array([-1.0, 1.0, 1.0]) - V))
-            V[:, 1] -= V[:, 1].min()
+        V = self.reconstruct(sex, w, check=False, symmetrize=t)
         if height is not None:
             V *= height / body_height(V)
             V[:, 1] -= V[:, 1].min()

@@ -165,3 +165,22 @@ def test_age_range_is_adult():
         assert fm.limits("age") == (17.0, 90.0)
         assert fm.training_range("age") == (17.0, 58.0)
         assert m.describe()["spaces"][sex]["features"]["age"]["range"][0] >= 17.0
+
+
+@pytest.mark.parametrize("sex", ["female", "male"])
+def test_bodies_from_measurements_at_the_extremes(sex):
+    """``body_from_measurements`` (CLI and the measurements fit mode) at the grid's corners: the
+    given stature (5 mm) and weight (2 %), both soles on the floor (it symmetrises as synthesis
+    does: without, one foot was up to 16.8 mm off the floor), the extrapolation warned about."""
+    from core.matching.from_measurements import body_from_measurements
+
+    m = default_model()
+    feet = [load_template().part_mask(p) for p in ("foot_L", "foot_R")]
+    for h, bmi in ((1.40, 15.0), (1.40, 55.0), (2.05, 15.0), (2.05, 55.0)):
+        r = body_from_measurements(sex, {"stature": h, "weightkg": bmi * h * h})
+        V = r.vertices
+        assert np.isfinite(V).all()
+        assert abs(body_height(V) - h) < 0.005
+        assert abs(m.weight_kg(V, sex) / (bmi * h * h) - 1.0) < 0.02
+        assert max(float(V[p, 1].min()) for p in feet) < 0.003, (h, bmi)
+        assert any("training range" in w for w in r.report.warnings)
