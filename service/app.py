@@ -27,6 +27,7 @@ from service.db import migrate, ping, session_scope
 from service.fastpath import SynthesizeFastPath
 from service.jobs import JobRunner, make_runner
 from service.limits import BodyLimit
+from service.privacy import PrivateHeaders, install_access_log_redaction
 from service.routes import router
 from service.runtime import tune_malloc
 from service.schemas import ErrorResponse, Health
@@ -67,10 +68,11 @@ def _startup(settings: Settings) -> None:
             key = ensure_local_key(s, settings.api_key) if not settings.distributed else None
             if settings.distributed and settings.api_key:
                 ensure_local_key(s, settings.api_key)
-    if key:
-        msg = f"created the local API key (shown once; tenant 'local'): {key}"
-        log.warning(msg)
-        print(f"bodyspace: {msg}", flush=True)
+    if key:  # printed once on stdout, never logged (logs are kept and shipped)
+        log.warning("created the first key of tenant 'local' (printed once on stdout, not logged)")
+        print(
+            f"bodyspace: created the local API key (shown once; tenant 'local'): {key}", flush=True
+        )
 
 
 @asynccontextmanager
@@ -124,6 +126,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings or get_settings()
     errors.install(app)
     app.add_middleware(SynthesizeFastPath)  # GLB synthesis without the routing machinery
+    app.add_middleware(PrivateHeaders)  # outermost: also on the short path's answers
+    install_access_log_redaction()
     # outermost: no JSON body above the limit reaches the app (nor the short path)
     app.add_middleware(BodyLimit, limit=app.state.settings.max_json_bytes)
     app.include_router(router)

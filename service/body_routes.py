@@ -24,9 +24,10 @@ from sqlalchemy.orm import Session
 
 from service.blobs import BlobStore
 from service.db import aware
-from service.deps import SessionDep, StoreDep, TenantId, require_json
+from service.deps import SessionDep, SettingsDep, StoreDep, TenantId, require_json
 from service.errors import ApiError, clip
 from service.models import Blob, Body, Fit, new_id
+from service.privacy import scrub_deleted
 from service.routes import _own, _page
 from service.schemas import (
     BodyCreate,
@@ -580,7 +581,9 @@ def create_posed_body(
 
 
 @router.delete("/bodies/{body_id}", status_code=204, tags=["bodies"])
-def delete_body(body_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+def delete_body(
+    body_id: str, tenant: TenantId, session: SessionDep, store: StoreDep, settings: SettingsDep
+) -> Response:
     """Delete a body and its blob (bodies edited from it are kept; their ``derived_from``
     becomes null)."""
     b = _own(session, Body, body_id, tenant, "body")
@@ -589,4 +592,5 @@ def delete_body(body_id: str, tenant: TenantId, session: SessionDep, store: Stor
     session.execute(delete(Body).where(Body.id == b.id))
     session.commit()
     store.delete_prefix(prefix)
+    scrub_deleted(settings)
     return Response(status_code=204)

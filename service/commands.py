@@ -1,4 +1,5 @@
-"""Service subcommands of ``bodyspace``: ``serve``, ``worker``, ``keys create --tenant NAME``.
+"""Service subcommands of ``bodyspace``: ``serve``, ``worker``, ``keys create --tenant NAME``,
+``keys list [--tenant NAME]``, ``keys revoke ID_OR_PREFIX``.
 
 Registered by ``service/cli.py`` through :func:`register`. All read the same settings
 (``BODYSPACE_*``, see :mod:`service.settings`).
@@ -163,6 +164,49 @@ def _keys_create(args: argparse.Namespace) -> int:
     return 0
 
 
+def _keys_list(args: argparse.Namespace) -> int:
+    from sqlalchemy import select
+
+    from service.db import migrate, session_scope
+    from service.models import ApiKey, Tenant
+
+    migrate()
+    with session_scope() as s:
+        q = select(ApiKey, Tenant.name).join(Tenant, Tenant.id == ApiKey.tenant_id)
+        if args.tenant:
+            q = q.where(Tenant.name == args.tenant)
+        rows = s.execute(q.order_by(Tenant.name, ApiKey.created_at)).all()
+        print(f"{'ID':<26} {'TENANT':<20} {'PREFIX':<14} {'CREATED':<20} REVOKED")
+        for key, tenant in rows:
+            revoked = key.revoked_at.strftime("%Y-%m-%d %H:%M:%S") if key.revoked_at else "-"
+            created = key.created_at.strftime("%Y-%m-%d %H:%M:%S")
+            print(f"{key.id:<26} {tenant:<20} {key.prefix:<14} {created:<20} {revoked}")
+    return 0
+
+
+def _keys_revoke(args: argparse.Namespace) -> int:
+    from sqlalchemy import or_, select
+
+    from service.db import migrate, session_scope
+    from service.models import ApiKey, utcnow
+    from service.settings import get_settings
+
+    migrate()
+    with session_scope() as s:
+        keys = list(
+            s.scalars(select(ApiKey).where(or_(ApiKey.id == args.key, ApiKey.prefix == args.key)))
+        )
+        if len(keys) != 1:
+            what = "no key" if not keys else f"{len(keys)} keys"
+            print(f"bodyspace: error: {what} with id or prefix {args.key!r} (see keys list)")
+            return 2
+        if keys[0].revoked_at is None:
+            keys[0].revoked_at = utcnow()
+    ttl = get_settings().api_key_cache_ttl_s
+    print(f"revoked {keys[0].id} ({keys[0].prefix}…); API processes refuse it within {ttl:g} s")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``serve``, ``worker`` and ``keys`` to the ``bodyspace`` command line."""
     p = subparsers.add_parser("serve", help="run the HTTP API (uvicorn)")
@@ -189,6 +233,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c = ks.add_parser("create", help="create a key for a tenant and print it")
     c.add_argument("--tenant", required=True, help="tenant name (created if new)")
     c.set_defaults(func=_keys_create)
+    c = ks.add_parser("list", help="list keys (id, tenant, prefix, created, revoked; no secret)")
+    c.add_argument("--tenant", default=None, help="only this tenant's keys")
+    c.set_defaults(func=_keys_list)
+    c = ks.add_parser(
+        "revoke",
+        help="revoke a key (by id or prefix); refused within BODYSPACE_API_KEY_CACHE_TTL_S",
+    )
+    c.add_argument("key", help="the key's id (key_…) or prefix (first 12 characters)")
+    c.set_defaults(func=_keys_revoke)
 
 
 def main(argv: list[str] | None = None) -> int:

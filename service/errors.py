@@ -55,6 +55,8 @@ API_ERRORS: dict[str, tuple[int, str]] = {
     "validation_error": (422, "the request is not valid"),
     "bad_request": (400, "bad request"),
     "not_ready": (503, "a dependency is not reachable"),
+    "too_many_active_fits": (429, "too many fits queued or running for this tenant"),
+    "queue_full": (503, "the fit queue is full: retry later"),
     "queue_unavailable": (503, "the job queue cannot take the fit now: nothing was stored, retry"),
     "internal_error": (500, "internal error"),
 }

@@ -16,9 +16,12 @@ import os
 import threading
 import time
 import uuid
+from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Protocol
+
+from sqlalchemy import select
 
 from service.settings import Settings
 
@@ -59,6 +62,15 @@ def _pool_init(parent_pid: int) -> None:
     warm_up()
 
 
+def _tenant_of(fit_id: str, settings: Settings) -> str | None:
+    """The tenant of fit ``fit_id`` (None if it is gone)."""
+    from service.db import session_scope
+    from service.models import Fit
+
+    with session_scope(settings) as s:
+        return s.scalar(select(Fit.tenant_id).where(Fit.id == fit_id))
+
+
 def _run(fit_id: str, task_id: str) -> str:
     from worker.jobs import run_fit
 
@@ -81,7 +93,16 @@ class EmbeddedRunner:
         self.settings = settings
         self._lock = threading.Lock()
         self._pool: ProcessPoolExecutor | None = None
-        self._pending: dict[str, Future] = {}
+        self._pending: dict[str, Future] = {}  # in the pool (at most settings.workers)
+        # Fair dispatch: fits wait here per tenant; a free pool slot goes to the tenant with the
+        # fewest fits in the pool, ties to the one served longest ago (one tenant's burst
+        # delays another's fit by at most the fits already in the pool).
+        self._waiting: dict[str, deque[str]] = {}
+        self._waiting_ids: set[str] = set()
+        self._tenant_of: dict[str, str] = {}  # fit id -> tenant, for fits in the pool
+        self._in_pool: dict[str, int] = {}  # tenant -> fits in the pool
+        self._served: dict[str, int] = {}  # tenant -> serial of its last dispatch
+        self._serial = 0
         self._polled: set[str] = set()
         self._generation = 0
         self._stop = threading.Event()
@@ -167,15 +188,13 @@ class EmbeddedRunner:
     def _poll_queued(self) -> None:
         """Submit queued fits not yet handed to the pool (accepted by another API process).
         Each is submitted once by the poll; retries are the sweep's (``recover``)."""
-        from sqlalchemy import select
-
         from service.db import session_scope
         from service.models import Fit
 
         with session_scope(self.settings) as s:
             queued = set(s.scalars(select(Fit.id).where(Fit.state == "queued")))
         with self._lock:
-            new = queued - self._polled - set(self._pending)
+            new = queued - self._polled - set(self._pending) - self._waiting_ids
             self._polled = (self._polled & queued) | new
         for fit_id in sorted(new):
             self.submit(fit_id)
@@ -188,27 +207,64 @@ class EmbeddedRunner:
                 return  # the row is committed as queued: the leader's poll picks it up
             if self._pool is None:
                 raise RuntimeError("the embedded job runner is not started")
-            if fit_id in self._pending:
-                return  # already in the pool
-            task_id = f"emb.{uuid.uuid4().hex[:12]}"
-            fut = self._spawner.submit(self._pool.submit, _run, fit_id, task_id).result()
-            self._pending[fit_id] = fut
-            gen = self._generation
-        fut.add_done_callback(lambda f, i=fit_id, g=gen: self._done(i, f, g))
+            if fit_id in self._pending or fit_id in self._waiting_ids:
+                return  # already in the pool or waiting for it
+        tenant = _tenant_of(fit_id, self.settings)
+        if tenant is None:
+            return  # deleted meanwhile
+        with self._lock:
+            if fit_id in self._pending or fit_id in self._waiting_ids:
+                return
+            self._waiting.setdefault(tenant, deque()).append(fit_id)
+            self._waiting_ids.add(fit_id)
+        self._dispatch()
+
+    def _dispatch(self) -> None:
+        """Fill the free pool slots, fairly across tenants."""
+        started: list[tuple[str, Future, int]] = []
+        with self._lock:
+            slots = max(1, self.settings.workers)
+            while self._pool is not None and self._waiting and len(self._pending) < slots:
+                tenant = min(
+                    self._waiting,
+                    key=lambda t: (self._in_pool.get(t, 0), self._served.get(t, -1)),
+                )
+                queue = self._waiting[tenant]
+                fit_id = queue.popleft()
+                if not queue:
+                    del self._waiting[tenant]
+                self._waiting_ids.discard(fit_id)
+                self._serial += 1
+                self._served[tenant] = self._serial
+                self._in_pool[tenant] = self._in_pool.get(tenant, 0) + 1
+                self._tenant_of[fit_id] = tenant
+                task_id = f"emb.{uuid.uuid4().hex[:12]}"
+                fut = self._spawner.submit(self._pool.submit, _run, fit_id, task_id).result()
+                self._pending[fit_id] = fut
+                started.append((fit_id, fut, self._generation))
+        for fit_id, fut, gen in started:  # outside the lock: a done future calls back at once
+            fut.add_done_callback(lambda f, i=fit_id, g=gen: self._done(i, f, g))
 
     def _done(self, fit_id: str, fut: Future, generation: int) -> None:
         exc = fut.exception() if not fut.cancelled() else None
         with self._lock:
             if self._pending.get(fit_id) is fut:
                 del self._pending[fit_id]
+                tenant = self._tenant_of.pop(fit_id, None)
+                if tenant is not None:
+                    self._in_pool[tenant] -= 1
+                    if not self._in_pool[tenant]:
+                        del self._in_pool[tenant]
             rebuild = isinstance(exc, BrokenProcessPool) and generation == self._generation
             if rebuild:
                 self._generation += 1
         if rebuild:
             log.error("the process pool broke while running %s: rebuilding it", fit_id)
             self._rebuild()
-        elif exc is not None:  # transient fault: the job stays in the DB for a later recovery
+            return
+        if exc is not None:  # transient fault: the job stays in the DB for a later recovery
             log.error("fit %s: %s", fit_id, exc)
+        self._dispatch()
 
     def _rebuild(self) -> None:
         from worker.jobs import recover
@@ -217,8 +273,16 @@ class EmbeddedRunner:
             if self._pool is not None:
                 self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = self._new_pool()
-            self._pending.clear()
+            self._forget()
         recover(self.submit, self.settings, on_start=True, requeue_running=True)
+
+    def _forget(self) -> None:
+        """Drop the dispatch state (caller holds the lock; recovery resubmits from the DB)."""
+        self._pending.clear()
+        self._waiting.clear()
+        self._waiting_ids.clear()
+        self._tenant_of.clear()
+        self._in_pool.clear()
 
     def check(self) -> str | None:
         if not self._started or (self.is_leader and self._pool is None):

@@ -13,14 +13,15 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, StreamingResponse
-from sqlalchemy import and_, delete, or_, select
+from sqlalchemy import and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
 from service.blobs import BlobStore, sha256_file
 from service.db import aware, session_scope
 from service.deps import RunnerDep, SessionDep, SettingsDep, StoreDep, TenantId, require_json
 from service.errors import ApiError, clip
-from service.models import Blob, Fit, Scan, new_id, utcnow
+from service.models import Blob, Fit, Scan, Tenant, new_id, utcnow
+from service.privacy import scrub_deleted
 from service.schemas import (
     ErrorResponse,
     FitCreate,
@@ -291,7 +292,9 @@ def get_scan(scan_id: str, tenant: TenantId, session: SessionDep) -> ScanOut:
 
 
 @router.delete("/scans/{scan_id}", status_code=204, tags=["scans"])
-def delete_scan(scan_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+def delete_scan(
+    scan_id: str, tenant: TenantId, session: SessionDep, store: StoreDep, settings: SettingsDep
+) -> Response:
     """Delete a scan, its fits and all their blobs (scans are personal data)."""
     _own(session, Scan, scan_id, tenant, "scan")
     fit_ids = list(session.scalars(select(Fit.id).where(Fit.scan_id == scan_id)))
@@ -302,6 +305,7 @@ def delete_scan(scan_id: str, tenant: TenantId, session: SessionDep, store: Stor
     store.delete_prefix(f"{tenant}/scans/{scan_id}")
     for fid in fit_ids:
         store.delete_prefix(f"{tenant}/fits/{fid}")
+    scrub_deleted(settings)
     return Response(status_code=204)
 
 
@@ -315,7 +319,8 @@ def delete_scan(scan_id: str, tenant: TenantId, session: SessionDep, store: Stor
     dependencies=[Depends(require_json)],
     responses={
         415: {"model": ErrorResponse, "description": "not application/json"},
-        503: {"model": ErrorResponse, "description": "the job queue is unreachable (Retry-After)"},
+        429: {"model": ErrorResponse, "description": "too many active fits (Retry-After)"},
+        503: {"model": ErrorResponse, "description": "queue full or unreachable (Retry-After)"},
     },
     tags=["fits"],
 )
@@ -360,6 +365,7 @@ def create_fit(
         _check_markerless_scan(scan, settings, store)
     else:  # measurements
         options = _check_measurements(body, options)
+    _admit(session, tenant, settings)
     fit = Fit(
         id=new_id("fit"),
         tenant_id=tenant,
@@ -384,6 +390,41 @@ def create_fit(
         raise ApiError("queue_unavailable", retry_after=5) from None
     response.headers["Location"] = f"/v1/fits/{fit.id}"
     return _fit_out(fit)
+
+
+#: Retry-After (s) of a refused fit: about one fit's time, when a slot may be free again.
+RETRY_AFTER_FIT_S = 10
+
+
+def _admit(session: Session, tenant: str, settings: Settings) -> None:
+    """Backpressure: at most ``tenant_max_active_fits`` queued + running fits per tenant (429),
+    at most ``max_queued_fits`` queued fits in all (503); both with ``Retry-After``."""
+    # PostgreSQL: the tenant's row lock serialises its admissions (no two requests both see
+    # the last free slot); SQLite serialises writers itself.
+    session.execute(select(Tenant.id).where(Tenant.id == tenant).with_for_update())
+    limit = settings.tenant_max_active_fits
+    active = session.scalar(
+        select(func.count())
+        .select_from(Fit)
+        .where(Fit.tenant_id == tenant, Fit.state.in_(("queued", "running")))
+    )
+    if active >= limit:
+        raise ApiError(
+            "too_many_active_fits",
+            f"{active} fits of this API key's tenant are queued or running (the limit is "
+            f"{limit}): retry when one has finished (see GET /v1/fits?state=running)",
+            retry_after=RETRY_AFTER_FIT_S,
+            active=active,
+            limit=limit,
+        )
+    queued = session.scalar(select(func.count()).select_from(Fit).where(Fit.state == "queued"))
+    if queued >= settings.max_queued_fits:
+        raise ApiError(
+            "queue_full",
+            f"{queued} fits are waiting for a worker (the limit is {settings.max_queued_fits}): "
+            "retry later",
+            retry_after=3 * RETRY_AFTER_FIT_S,
+        )
 
 
 def _read_inline_markers(given: dict[str, list[float]]) -> dict[str, list[float]]:
@@ -544,7 +585,9 @@ def get_fit(fit_id: str, tenant: TenantId, session: SessionDep) -> FitOut:
 
 
 @router.delete("/fits/{fit_id}", status_code=204, tags=["fits"])
-def delete_fit(fit_id: str, tenant: TenantId, session: SessionDep, store: StoreDep) -> Response:
+def delete_fit(
+    fit_id: str, tenant: TenantId, session: SessionDep, store: StoreDep, settings: SettingsDep
+) -> Response:
     """Delete one fit (of any mode) and its result blobs; its scan, if any, is kept.
 
     A markers-only fit without a scan is deleted only this way. A running fit is abandoned by
@@ -555,6 +598,7 @@ def delete_fit(fit_id: str, tenant: TenantId, session: SessionDep, store: StoreD
     session.execute(delete(Fit).where(Fit.id == fit_id))
     session.commit()
     store.delete_prefix(f"{tenant}/fits/{fit_id}")
+    scrub_deleted(settings)
     return Response(status_code=204)
 
 

@@ -49,6 +49,14 @@ class Settings(BaseSettings):
     )
     page_size_max: int = 200
 
+    # backpressure
+    tenant_max_active_fits: int = Field(
+        8, description="fits queued + running per tenant; beyond: 429 with Retry-After"
+    )
+    max_queued_fits: int = Field(
+        1000, description="queued fits of all tenants; beyond: 503 queue_full with Retry-After"
+    )
+
     # jobs
     workers: int = Field(1, description="embedded mode: size of the local process pool")
     job_time_limit_s: float = 900.0

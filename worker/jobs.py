@@ -386,6 +386,33 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
     return "succeeded"
 
 
+def tenant_rank(fit_id: str, settings: Settings | None = None) -> int:
+    """How many of its tenant's queued or running fits were created before fit ``fit_id``."""
+    from sqlalchemy import func
+
+    settings = settings or get_settings()
+    with session_scope(settings) as s:
+        row = s.get(Fit, fit_id)
+        if row is None:
+            return 0
+        return int(
+            s.scalar(
+                select(func.count())
+                .select_from(Fit)
+                .where(
+                    Fit.tenant_id == row.tenant_id,
+                    Fit.state.in_(("queued", "running")),
+                    Fit.id != fit_id,
+                    or_(
+                        Fit.created_at < row.created_at,
+                        and_(Fit.created_at == row.created_at, Fit.id < fit_id),
+                    ),
+                )
+            )
+            or 0
+        )
+
+
 def recover(
     submit: Callable[[str], None],
     settings: Settings | None = None,

@@ -23,6 +23,8 @@ from service.settings import get_settings
 from worker import jobs
 
 TASK_NAME = "bodyspace.fits.run"
+#: Lowest message priority (Redis transport: 0 is consumed first).
+MAX_PRIORITY = 9
 log = logging.getLogger("bodyspace.worker")
 
 
@@ -38,7 +40,12 @@ def make_celery() -> Celery:
         task_default_queue=s.queue_name,
         task_time_limit=int(s.job_time_limit_s + 60),
         task_soft_time_limit=int(s.job_time_limit_s + 30),
-        broker_transport_options={"visibility_timeout": s.visibility_timeout_s},
+        broker_transport_options={
+            "visibility_timeout": s.visibility_timeout_s,
+            # fairness: one list per priority, consumed 0 first (see submit)
+            "queue_order_strategy": "priority",
+            "priority_steps": list(range(MAX_PRIORITY + 1)),
+        },
         broker_connection_retry_on_startup=True,
         task_serializer="json",
         accept_content=["json"],
@@ -65,12 +72,17 @@ def run_fit(self, fit_id: str) -> str:
 
 
 def submit(fit_id: str) -> None:
-    """Enqueue fit ``fit_id`` (a fresh task id each time)."""
+    """Enqueue fit ``fit_id`` (a fresh task id each time).
+
+    Its priority is its rank among its tenant's active fits (0 for the oldest, capped at
+    :data:`MAX_PRIORITY`): workers take every tenant's first fit before anyone's second, so a
+    burst of one tenant delays another tenant's fit by about one fit per worker."""
     app.send_task(
         TASK_NAME,
         args=[fit_id],
         task_id=f"{fit_id}.{uuid.uuid4().hex[:12]}",
         queue=get_settings().queue_name,
+        priority=min(MAX_PRIORITY, jobs.tenant_rank(fit_id)),
         retry=True,
         retry_policy={"max_retries": 2, "interval_start": 0, "interval_step": 0.5},
     )

@@ -68,6 +68,9 @@ def env(tmp_path_factory, pg_url, redis_client) -> dict[str, str]:
             "BODYSPACE_HEARTBEAT_INTERVAL_S": "0.5",
             "BODYSPACE_STALE_AFTER_S": "6",
             "BODYSPACE_SWEEP_INTERVAL_S": "1",
+            # one server for the whole session: fits of many tests add up (the limits have
+            # their own tests with their own servers)
+            "BODYSPACE_TENANT_MAX_ACTIVE_FITS": "100",
         }
     )
 

@@ -11,6 +11,14 @@ from service.testing import glb_vertices, upload_scan, validate_glb, wait_state
 FAST = {"schedule": "fast"}
 
 
+def _waiting(redis_client, queue: str) -> int:
+    """Messages waiting in ``queue`` (one Redis list per priority: worker.tasks.MAX_PRIORITY)."""
+    from worker.tasks import MAX_PRIORITY
+
+    names = [queue] + [f"{queue}\x06\x16{p}" for p in range(1, MAX_PRIORITY + 1)]
+    return sum(redis_client.llen(n) for n in names)
+
+
 def _logs(*procs) -> str:
     return "\n".join(f"--- {p.log.name}\n{p.output()[-4000:]}" for p in procs)
 
@@ -93,9 +101,9 @@ def test_flushed_broker_jobs_are_recovered_from_the_database(
         client.post("/v1/fits", json={"scan_id": scan["id"], "options": FAST}).json()["id"]
         for _ in range(2)
     ]
-    assert redis_client.llen(queue) == 2  # no worker runs: both wait in Redis
+    assert _waiting(redis_client, queue) == 2  # no worker runs: both wait in Redis
     redis_client.flushdb()
-    assert redis_client.llen(queue) == 0
+    assert _waiting(redis_client, queue) == 0
     w = workers("w3")  # on start it re-enqueues what the database says is queued
     for fit_id in ids:
         done = wait_state(client, fit_id, timeout=240)

@@ -40,6 +40,9 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
             "BODYSPACE_PROGRESS_INTERVAL_S": "0.2",
             "BODYSPACE_MAX_VERTICES": "100000",
             "BODYSPACE_HEARTBEAT_INTERVAL_S": "0.5",
+            # one server for the whole session: fits of many tests add up (the limits have
+            # their own tests with their own servers)
+            "BODYSPACE_TENANT_MAX_ACTIVE_FITS": "100",
         }
     )
     proc = start_server(env, port, data / "server.log")
