@@ -16,6 +16,7 @@ from contextlib import asynccontextmanager, contextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
+from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 
@@ -126,8 +127,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings or get_settings()
     errors.install(app)
     app.add_middleware(SynthesizeFastPath)  # GLB synthesis without the routing machinery
-    app.add_middleware(PrivateHeaders)  # outermost: also on the short path's answers
+    app.add_middleware(PrivateHeaders)  # also on the short path's answers
     install_access_log_redaction()
+    origins = app.state.settings.cors_origin_list
+    if origins:  # closed by default; outermost: preflights are answered before anything else
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=origins,
+            allow_methods=["GET", "POST", "DELETE"],
+            allow_headers=["Authorization", "X-API-Key", "Content-Type", "Accept"],
+            expose_headers=["Location", "Retry-After"],
+            allow_credentials=False,  # keys travel in headers, never in cookies
+            max_age=600,
+        )
     # outermost: no JSON body above the limit reaches the app (nor the short path)
     app.add_middleware(BodyLimit, limit=app.state.settings.max_json_bytes)
     app.include_router(router)

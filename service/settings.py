@@ -49,6 +49,12 @@ class Settings(BaseSettings):
     )
     page_size_max: int = 200
 
+    cors_origins: str = Field(
+        "",
+        description="comma-separated origins (scheme://host[:port]) whose browser pages may call "
+        "the API; empty (the default): no cross-origin access",
+    )
+
     # backpressure
     tenant_max_active_fits: int = Field(
         8, description="fits queued + running per tenant; beyond: 429 with Retry-After"
@@ -90,6 +96,11 @@ class Settings(BaseSettings):
     def resolved_blob_dir(self) -> Path:
         """Root folder of the blob store."""
         return (self.blob_dir or self.data_dir / "blobs").resolve()
+
+    @property
+    def cors_origin_list(self) -> list[str]:
+        """:attr:`cors_origins` as a list (no trailing slashes, blanks dropped)."""
+        return [o.strip().rstrip("/") for o in self.cors_origins.split(",") if o.strip()]
 
     @property
     def distributed(self) -> bool:
