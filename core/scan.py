@@ -62,6 +62,7 @@ class Scan:
     boundary : (n,) bool, True for points on a hole boundary.
     frame : how the file's coordinates were mapped here.
     notes : human-readable notes for the report (e.g. "confidence estimated").
+    colors : (n, 3) uint8 RGB per point, or None (the file had no colours).
     """
 
     V: np.ndarray
@@ -71,3 +72,4 @@ class Scan:
     boundary: np.ndarray
     frame: FrameInfo | None = None
     notes: list[str] = field(default_factory=list)
+    colors: np.ndarray | None = None

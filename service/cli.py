@@ -189,6 +189,9 @@ def run_fit(
             result = _fit_markerless(scan, callback=bar, **options)
         else:
             result = fit(scan, markers, callback=bar, **options)
+        from core.transfer.colour import colour_fit
+
+        colour_fit(result, scan)
         ok = True
     finally:
         bar.close(ok)
@@ -221,7 +224,7 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
 
     t0 = time.perf_counter()
     for out in outs:
-        write_mesh(out, result.vertices, result.faces)
+        write_mesh(out, result.vertices, result.faces, colors=getattr(result, "colors", None))
     info["outputs"] = [str(p) for p in outs]
     info["timing_s"]["write"] = time.perf_counter() - t0
     info["timing_s"]["total"] = sum(v for v in info["timing_s"].values())

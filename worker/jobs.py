@@ -238,10 +238,15 @@ def _run_core(
         result.report.notes.insert(0, note)
         result.report.units, result.report.up = units, up
         return result
+    from core.transfer.colour import colour_fit
+
     scan_obj, markers = _load_inputs(row, scan, store, settings, use_markers=mode == "full")
     if mode == "markerless":
-        return fit_markerless(scan_obj, callback=callback, **opts)
-    return fit(scan_obj, markers, callback=callback, **opts)
+        result = fit_markerless(scan_obj, callback=callback, **opts)
+    else:
+        result = fit(scan_obj, markers, callback=callback, **opts)
+    colour_fit(result, scan_obj)  # a coloured scan gives a coloured body
+    return result
 
 
 def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
@@ -317,8 +322,9 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             report = json_ready(result.report.to_dict())
             keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
             files = {f: store.temp_file(f".{f}") for f in RESULT_FORMATS}
-            write_glb(files["glb"], V, F)
-            write_ply(files["ply"], V, F)
+            colors = getattr(result, "colors", None)  # only fits of coloured scans
+            write_glb(files["glb"], V, F, colors=colors)
+            write_ply(files["ply"], V, F, colors=colors)
             write_obj(files["obj"], V, F)
             files["json"].write_text(json.dumps(report, indent=1), encoding="utf-8")
             blobs = [

@@ -307,6 +307,7 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo) -> Scan:
         boundary=boundary,
         frame=frame,
         notes=notes,
+        colors=None if m.colors is None else np.asarray(m.colors, dtype=np.uint8),
     )
 
 

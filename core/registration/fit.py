@@ -113,6 +113,8 @@ class FitResult:
         scan metres.
     data_weight : (13380,) final data-term weight of each vertex (0: filled by smoothness).
     report : :class:`FitReport`.
+    colors : (13380, 3) float64 RGB in [0, 1] from a coloured scan
+        (:func:`core.transfer.colour.colour_fit`), else None.
     """
 
     vertices: np.ndarray
@@ -120,6 +122,7 @@ class FitResult:
     affines: np.ndarray
     data_weight: np.ndarray
     report: FitReport
+    colors: np.ndarray | None = None
 
 
 class FitCancelled(Exception):  # noqa: N818 (a cancellation, not an error)

@@ -115,6 +115,7 @@ class SimScan:
     V_truth : (13380, 3) float64 the scanned body, template order, same frame and units.
     meta : units, up, ``to_file`` (4, 4) matrix mapping canonical metres to this frame,
         ``view`` (n,) int view index per vertex, config, timings.
+    colors : (n, 3) float64 RGB in [0, 1] per scan vertex, when the body was painted.
     """
 
     V_scan: np.ndarray
@@ -124,6 +125,7 @@ class SimScan:
     markers: dict[str, np.ndarray]
     V_truth: np.ndarray
     meta: dict = field(default_factory=dict)
+    colors: np.ndarray | None = None
 
 
 def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -261,8 +263,12 @@ def _scan_view(
             seen |= ok & _visible(np.stack([uv[:, 0], v_cam], 1), rng_h, Fc, u_pt, v_pt, r_pt)
         keep &= seen
     px, py, P, ray, cos = px[keep], py[keep], P[keep], ray[keep], cos[keep]
+    src = (tv[keep], bary[keep])  # where each point is on the body (for colours)
     if len(P) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), np.zeros((0, 3))
+        return (
+            np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), np.zeros((0, 3)),
+            (np.zeros((0, 3), np.int64), np.zeros((0, 3))),
+        )  # fmt: skip
     P = P + rng.normal(0.0, cfg.noise_m, size=(len(P), 1)) * ray
     depth = np.einsum("ij,ij->i", P - c, ray)
     # range image
@@ -284,7 +290,7 @@ def _scan_view(
         tn = np.cross(P[T[:, 1]] - P[T[:, 0]], P[T[:, 2]] - P[T[:, 0]])
         if np.einsum("ij,ij->i", tn, ray[T[:, 0]]).sum() > 0:
             T = T[:, [0, 2, 1]]
-    return P, T, conf, ray
+    return P, T, conf, ray, src
 
 
 def _compact(keep: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -308,6 +314,8 @@ def simulate_scan(
     *,
     config: ScanConfig = ScanConfig(),
     landmarks: dict[str, int] | None = None,
+    colors: np.ndarray | None = None,
+    color_noise: float = 0.02,
 ) -> SimScan:
     """Simulate a raw multi-view whole-body range scan of a template-order body.
 
@@ -318,6 +326,9 @@ def simulate_scan(
     rng : numpy random generator (the only source of randomness: same seed, same scan).
     config : scanner settings; ``ScanConfig.small()`` for fast tests.
     landmarks : name -> vertex index for the markers (default: the template's landmarks).
+    colors : (13380, 3) float RGB in [0, 1] painted on the body: each scan point gets the
+        barycentric colour of the surface point it samples plus Gaussian noise
+        (``color_noise``, drawn after everything else: the geometry is the uncoloured scan's).
 
     Returns
     -------
@@ -338,10 +349,11 @@ def simulate_scan(
     if _signed_volume(Vc, F) < 0:  # make normals point outwards
         N = -N
     phi0 = np.radians(rng.uniform(-cfg.azimuth_jitter_deg, cfg.azimuth_jitter_deg))
-    Ps, Ts, Cs, Rs, views = [], [], [], [], []
+    Ps, Ts, Cs, Rs, views, srcs = [], [], [], [], [], []
     n0 = 0
     for k in range(cfg.n_views):
-        P, T, conf, ray = _scan_view(Vc, F, N, phi0 + 2 * np.pi * k / cfg.n_views, cfg, rng)
+        P, T, conf, ray, src = _scan_view(Vc, F, N, phi0 + 2 * np.pi * k / cfg.n_views, cfg, rng)
+        srcs.append(src)
         Ps.append(P)
         Ts.append(T + n0)
         Cs.append(conf)
@@ -367,6 +379,8 @@ def simulate_scan(
             blobs.append((P[i] + centre, r))
     idx, T = _compact(keep, T)
     P, conf, ray, view = P[idx], conf[idx], ray[idx], view[idx]
+    src_tv = np.concatenate([s_[0] for s_ in srcs])[idx]
+    src_bary = np.concatenate([s_[1] for s_ in srcs])[idx]
     Ns = vertex_normals(P, T)
     bad = np.linalg.norm(Ns, axis=1) == 0
     Ns[bad] = -ray[bad]
@@ -401,6 +415,15 @@ def simulate_scan(
         "config": asdict(cfg),
         "seconds": {"raster": t_raster, "total": time.perf_counter() - t0},
     }
+    point_colors = None
+    if colors is not None:
+        Cv = np.asarray(colors, dtype=np.float64)
+        if Cv.shape != V.shape:
+            raise ValueError(f"colors must have shape {V.shape}, got {Cv.shape}")
+        point_colors = np.einsum("kj,kjc->kc", src_bary, Cv[src_tv])
+        point_colors = np.clip(
+            point_colors + rng.normal(0.0, color_noise, point_colors.shape), 0, 1
+        )
     return SimScan(
         V_scan=tf(P),
         F_scan=T,
@@ -409,6 +432,7 @@ def simulate_scan(
         markers={n: tf(M[i][None])[0] for i, n in enumerate(names)},
         V_truth=tf(V),
         meta=meta,
+        colors=point_colors,
     )
 
 

@@ -91,3 +91,35 @@ def test_rig_and_pose(tmp_path):
     rot.write_text(json.dumps({"nosuchbone": [0, 0, 1]}))
     assert_one_line_error(run_cli("pose", a, "--rotations", rot, "--out", p), "nosuchbone")
     assert_one_line_error(run_cli("rig", a, "--out", tmp_path / "r.ply"), ".glb")
+
+
+def test_fit_of_a_coloured_scan_is_coloured(tmp_path):
+    """``bodyspace fit`` of a coloured PLY: COLOR_0 in the GLB (validator-clean) and colours
+    in the PLY, close to the paint (the core test bounds the error; here: the plumbing)."""
+    from core.io import write_markers_csv
+    from core.synth import ScanConfig, simulate_scan
+    from tests.core.test_transfer_colour import paint
+
+    tpl = load_template()
+    rng = np.random.default_rng(11)
+    body = random_body(rng, sex="male")
+    C = paint(tpl.V)
+    sim = simulate_scan(body.V, tpl.F, rng, config=ScanConfig.small(), colors=C)
+    write_ply(tmp_path / "scan.ply", sim.V_scan, sim.F_scan, colors=sim.colors)
+    write_markers_csv(tmp_path / "m.csv", sim.markers)
+    glb, ply = tmp_path / "fit.glb", tmp_path / "fit.ply"
+    for out in (glb, ply):
+        r = run_cli(
+            "fit", tmp_path / "scan.ply", "--markers", tmp_path / "m.csv", "--fast", "--quiet",
+            "--out", out,
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr
+    report = validate_glb(glb)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(glb.read_bytes())
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    rgba = accessor(attrs["COLOR_0"]).astype(np.float64) / 255.0
+    assert np.abs(rgba[:, :3] - C).mean() / 0.8 < 0.05
+    m = read_mesh(ply)
+    assert m.colors is not None
+    np.testing.assert_allclose(m.colors / 255.0, rgba[:, :3], atol=1 / 255 + 1e-9)
