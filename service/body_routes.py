@@ -217,8 +217,29 @@ def _fit_vertices(store: BlobStore, tenant: str, fit: Fit) -> np.ndarray:
     return V
 
 
+def _body_colors(store: BlobStore, b: Body) -> np.ndarray | None:
+    """(13380, 3) uint8 colours of a body from a fit of a coloured scan (its edits and poses
+    too: same vertices), read from the fit's PLY result; None for every other body."""
+    from core.io import read_mesh
+    from worker.jobs import result_key
+
+    if b.fit_id is None or b.source not in ("fit", "edit", "pose"):
+        return None
+    try:
+        with store.local_copy(result_key(b.tenant_id, b.fit_id, "ply")) as p:
+            C = read_mesh(p, "ply").colors
+    except FileNotFoundError:
+        return None
+    return C if C is not None and len(C) == int(_template_faces().max()) + 1 else None
+
+
 def _mesh_response(
-    request: Request, b: Body, V: np.ndarray, status: int = 200, **headers: str
+    request: Request,
+    b: Body,
+    V: np.ndarray,
+    status: int = 200,
+    colors: np.ndarray | None = None,
+    **headers: str,
 ) -> Response:
     F = _template_faces()
     meta = _body_out(b)
@@ -226,14 +247,22 @@ def _mesh_response(
         out = meta.model_dump(mode="json")
         out["vertices"] = V.tolist()
         out["faces"] = F.tolist()
+        if colors is not None:
+            out["colors"] = colors.tolist()
         return Response(
             json.dumps(out, separators=(",", ":")),
             status_code=status,
             media_type="application/json",
             headers=headers,
         )
+    if colors is not None:
+        from core.io import write_glb
+
+        data = write_glb(None, V, F, colors=colors)
+    else:
+        data = body_glb(V)
     return Response(
-        body_glb(V),
+        data,
         status_code=status,
         media_type=GLB,
         headers={**headers, **warnings_header(meta.warnings)},
@@ -412,8 +441,8 @@ def get_body(
                 "this body is posed; rig the body it was posed from (derived_from)",
                 field="rig",
             )
-        return Response(rig_glb(V), media_type=GLB)
-    return _mesh_response(request, b, V)
+        return Response(rig_glb(V, colors=_body_colors(store, b)), media_type=GLB)
+    return _mesh_response(request, b, V, colors=_body_colors(store, b))
 
 
 @router.get("/bodies/{body_id}/measurements", response_model=BodyMeasurements, tags=["bodies"])
@@ -528,7 +557,9 @@ def edit_body(
         session, store, tenant=tenant, V=V2, model=src.model, sex=src.sex, source="edit",
         params=params, fit_id=src.fit_id, derived_from=src.id,
     )  # fmt: skip
-    return _mesh_response(request, row, V2, 201, Location=f"/v1/bodies/{row.id}")
+    return _mesh_response(
+        request, row, V2, 201, colors=_body_colors(store, row), Location=f"/v1/bodies/{row.id}"
+    )
 
 
 @router.post(
@@ -577,7 +608,9 @@ def create_posed_body(
         session, store, tenant=tenant, V=V, model=src.model, sex=src.sex, source="pose",
         params=params, fit_id=src.fit_id, derived_from=src.id, features=src.features or {},
     )  # fmt: skip
-    return _mesh_response(request, row, V, 201, Location=f"/v1/bodies/{row.id}")
+    return _mesh_response(
+        request, row, V, 201, colors=_body_colors(store, row), Location=f"/v1/bodies/{row.id}"
+    )
 
 
 @router.delete("/bodies/{body_id}", status_code=204, tags=["bodies"])

@@ -436,6 +436,11 @@ class BodyMesh(BodyOut):
 
     vertices: list[list[float]] = Field(description="(13380, 3), template order, metres, +Y up")
     faces: list[list[int]] = Field(description="(m, 3) template triangles")
+    colors: list[list[int]] | None = Field(
+        None,
+        description="(13380, 3) RGB 0-255 per vertex, for bodies of a fit of a coloured scan "
+        "(and their edits and poses); absent otherwise",
+    )
 
 
 class BodyPage(BaseModel):

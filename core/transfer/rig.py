@@ -142,9 +142,17 @@ def skin(V: np.ndarray, *, rig: Rig | None = None, method: str = "regressor") ->
     )
 
 
-def rig_glb(V: np.ndarray, *, rig: Rig | None = None, method: str = "regressor") -> bytes:
-    """Skinned GLB of body ``V`` (template order, metres): mesh, normals, ``skin``."""
-    return write_glb(None, V, load_template().F, skin=skin(V, rig=rig, method=method))
+def rig_glb(
+    V: np.ndarray,
+    *,
+    rig: Rig | None = None,
+    method: str = "regressor",
+    colors: np.ndarray | None = None,
+) -> bytes:
+    """Skinned GLB of body ``V`` (template order, metres): mesh, normals, ``skin`` (and
+    ``COLOR_0`` from ``colors``, (13380, 3) uint8 or floats in [0, 1], if given)."""
+    tpl = load_template()
+    return write_glb(None, V, tpl.F, colors=colors, skin=skin(V, rig=rig, method=method))
 
 
 def rotations_from_vectors(rotations: Mapping[str, object]) -> dict[str, np.ndarray]:
