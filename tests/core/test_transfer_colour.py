@@ -75,3 +75,24 @@ def test_uncoloured_scan_is_refused(coloured_fit):
     _, scan, res, _ = coloured_fit
     with pytest.raises(ValueError, match="no colours"):
         transfer_colours(res.vertices, replace(scan, colors=None))
+
+
+def test_obj_vertex_colours_reach_the_scan(coloured_fit, tmp_path):
+    """OBJ ``v x y z r g b`` (floats in [0, 1]) -> Scan.colors, the same colours as the PLY."""
+    _, scan, _, _ = coloured_fit
+    from core.io import load_scan
+    from core.io.writers import atomic_write
+
+    V, C = scan.V, scan.colors
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f} {r / 255:.6f} {g / 255:.6f} {b / 255:.6f}"
+             for (x, y, z), (r, g, b) in zip(V, C, strict=True)]  # fmt: skip
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in scan.F]
+    atomic_write(tmp_path / "scan.obj", ("\n".join(lines) + "\n").encode())
+    obj, _ = load_scan(tmp_path / "scan.obj", units="m", up="+y")
+    assert obj.colors is not None and len(obj.colors) == len(obj.V)
+    # same points (cleaning may reorder nothing here): colours within one step of 255
+    from scipy.spatial import cKDTree
+
+    d, j = cKDTree(V).query(obj.V)
+    assert d.max() < 1e-5
+    assert np.abs(obj.colors.astype(int) - C[j].astype(int)).max() <= 1
