@@ -42,11 +42,21 @@ class FrameInfo:
 
     def to_canonical(self, X: np.ndarray) -> np.ndarray:
         """Map (k, 3) file coordinates to canonical metres, +Y up."""
-        return self.scale * (np.asarray(X, dtype=np.float64) @ self.R.T)
+        return _times3(X, self.scale * self.R.T)
 
     def to_file(self, X: np.ndarray) -> np.ndarray:
         """Map (k, 3) canonical coordinates back to the file's units and axes."""
-        return (np.asarray(X, dtype=np.float64) @ self.R) / self.scale
+        return _times3(X, self.R / self.scale)
+
+
+def _times3(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``X @ M`` for (k, 3) X and a (3, 3) M as three scaled columns: BLAS matmul of this
+    shape costs ~10x more CPU (0.6 s for 2.2 M points, threads included)."""
+    X = np.asarray(X, dtype=np.float64)
+    out = X[..., 0:1] * M[0]
+    out += X[..., 1:2] * M[1]
+    out += X[..., 2:3] * M[2]
+    return out
 
 
 @dataclass

@@ -347,31 +347,19 @@ def _binary_element(
         (np.dtype(end + p.type), None if p.count_type is None else np.dtype(end + p.count_type))
         for p in el.props
     ]
-    starts = _uniform_row_starts(data, off, n, props)
-    if starts is not None and n:  # one structured view, no gathers
-        counts0, _ = _row_layout(data, off, props)  # type: ignore[misc]
-        fields, li = [], 0
-        for i, (vt, ct) in enumerate(props):
-            if ct is None:
-                fields.append((f"p{i}", vt))
-            else:
-                fields.append((f"c{i}", ct))
-                fields.append((f"p{i}", vt, (counts0[li],)))
-                li += 1
-        rec = np.frombuffer(data, np.dtype(fields), n, off)
-        out, li = {}, 0
+    rec = _uniform_rows(data, off, n, props)
+    if rec is not None:  # every row has the first row's list lengths: one structured view
+        out: dict[str, Any] = {}
         for i, p in enumerate(el.props):
             if props[i][1] is None:
                 out[p.name] = rec[f"p{i}"]
-            else:
-                c = counts0[li]
-                out[p.name] = (np.full(n, c, dtype=np.int64), rec[f"p{i}"].reshape(n * c))
-                li += 1
+            else:  # (n, c) values: a ragged array of equal rows
+                vals = rec[f"p{i}"] if f"p{i}" in rec.dtype.names else np.zeros((n, 0))
+                out[p.name] = (np.full(n, vals.shape[1], dtype=np.int64), vals)
         return out, off + n * rec.dtype.itemsize
-    if starts is None:
-        starts = _row_starts(data, off, n, props, el.name, what)
+    starts = _row_starts(data, off, n, props, el.name, what)
     buf = np.frombuffer(data, np.uint8)
-    out: dict[str, Any] = {}
+    out = {}
     pos = starts
     for p, (vt, ct) in zip(el.props, props, strict=True):
         if ct is None:
@@ -421,29 +409,34 @@ def _row_layout(data, off: int, props) -> tuple[list[int], int] | None:
     return counts, pos - off
 
 
-def _uniform_row_starts(data, off: int, n: int, props) -> np.ndarray | None:
-    """Row starts if every row has the first row's list lengths (checked), else None."""
+def _uniform_rows(data, off: int, n: int, props) -> np.ndarray | None:
+    """The rows as one structured array if every row has the first row's list lengths
+    (checked), else None."""
     if n == 0:
-        return np.zeros(0, dtype=np.int64)
+        return None
     first = _row_layout(data, off, props)
     if first is None or any(c < 0 or c > _MAX_LIST for c in first[0]):
         return None
     counts, size = first
     if off + n * size > len(data):
         return None
-    starts = off + size * np.arange(n, dtype=np.int64)
-    buf = np.frombuffer(data, np.uint8)
-    pos = starts
-    li = 0
-    for vt, ct in props:
+    fields, li = [], 0
+    for i, (vt, ct) in enumerate(props):
         if ct is None:
-            pos = pos + vt.itemsize
-            continue
-        if not np.all(_gather(buf, pos, ct) == counts[li]):
-            return None
-        pos = pos + ct.itemsize + counts[li] * vt.itemsize
-        li += 1
-    return starts
+            fields.append((f"p{i}", vt))
+        else:
+            fields.append((f"c{i}", ct))
+            if counts[li]:
+                fields.append((f"p{i}", vt, (counts[li],)))
+            li += 1
+    rec = np.frombuffer(data, np.dtype(fields), n, off)
+    li = 0
+    for i, (_, ct) in enumerate(props):
+        if ct is not None:
+            if not np.all(rec[f"c{i}"] == counts[li]):
+                return None
+            li += 1
+    return rec
 
 
 def _row_starts(data, off: int, n: int, props, name: str, what: str) -> np.ndarray:
@@ -576,12 +569,17 @@ def _as_type(a: np.ndarray, t: str) -> np.ndarray:
 def _fan(counts: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """Fan-triangulate polygons given as a ragged array -> (m, 3) int64, in file order.
 
-    ``counts`` (r,) corners per polygon, ``flat`` (sum(counts),) their vertex indices; polygon
+    ``counts`` (r,) corners per polygon, ``flat`` (sum(counts),) their vertex indices (or
+    (r, k) when every polygon has k corners); polygon
     ``(v0, ..., vk-1)`` gives ``(v0, vj, vj+1)`` for j = 1..k-2; polygons with < 3 corners are
     dropped. Vectorised: mixed triangles, quads and n-gons cost what uniform ones do.
     """
     counts = np.asarray(counts, dtype=np.int64)
     flat = np.asarray(flat)
+    if flat.ndim == 2:  # equal rows (n, k), e.g. a structured view of a binary PLY
+        if flat.shape[1] == 3:
+            return flat.astype(np.int64)  # one copy, contiguous
+        flat = flat.reshape(-1)
     if len(counts) and np.all(counts == 3):
         return flat.astype(np.int64, copy=False).reshape(-1, 3)
     first = np.cumsum(counts) - counts
@@ -1026,6 +1024,8 @@ def _read_xyz(data: bytes, what: str, max_vertices: int | None, max_faces: int |
 
 
 def _check_nonfinite(V: np.ndarray, what: str) -> None:
+    if np.isfinite(V.sum()):  # one reduction; NaN/Inf propagate (overflow to Inf: checked below)
+        return
     bad = ~np.isfinite(V).all(axis=1)
     if bad.any():
         nb = int(bad.sum())
@@ -1051,8 +1051,8 @@ def _finish(raw: RawMesh, what: str) -> RawMesh:
             raw.F = None
         else:
             nv = len(V)
-            bad = (F < 0) | (nv <= F)
-            if bad.any():
+            if F.min() < 0 or F.max() >= nv:
+                bad = (F < 0) | (nv <= F)
                 row = int(np.flatnonzero(bad.any(axis=1))[0])
                 val = int(F[row][bad[row]][0])
                 raise InputFormatError(

@@ -238,3 +238,30 @@ def test_mixed_winding_in_a_raw_multiview_scan_repaired():
     agree = np.sum(flipped.normals * c.scan.normals, axis=1) > 0.9
     # measured 0.987: small fragments made only of arm triangles keep their (inward) side
     assert np.mean(agree) > 0.98
+
+
+def test_dense_scan_decimated_on_a_voxel_grid():
+    """A dense scan (the template subdivided twice, ~4x4 the vertices) is vertex-clustered on
+    the 4 mm grid before preparation: far fewer vertices, the same surface, borders only where
+    the surface is open, outward normals, and the notes say so."""
+    from core.io.prepare import DECIMATE_VOXEL_M, decimate_voxel_grid
+
+    V, F = trimesh.remesh.subdivide(V0, F0)
+    V, F = trimesh.remesh.subdivide(V, F)
+    raw = RawMesh(V=V, F=F)
+    dense = prepare_scan(raw, detect_frame(V), decimate_above=len(V) + 1)
+    s = prepare_scan(raw, detect_frame(V), decimate_above=100_000)
+    assert any("decimated" in n and f"{len(V):,}" in n for n in s.notes)
+    assert len(s.V) < len(V) / 3
+    # every decimated vertex lies on the dense surface (cluster means: within a voxel)
+    from scipy.spatial import cKDTree
+
+    d, near = cKDTree(V).query(s.V)
+    assert d.max() < DECIMATE_VOXEL_M * np.sqrt(3)
+    # the template is closed but for its mouth/eyes openings: borders stay few
+    assert s.boundary.mean() < 3 * max(dense.boundary.mean(), 0.01)
+    nn = dense.normals[near]
+    assert np.median(np.einsum("ij,ij->i", s.normals, nn)) > 0.95
+    # attributes are averaged per cell
+    m = decimate_voxel_grid(RawMesh(V=V, F=F, confidence=np.full(len(V), 0.5)), 0.004)
+    assert np.allclose(m.confidence, 0.5) and len(m.V) == len(m.confidence) >= len(s.V)
