@@ -156,6 +156,7 @@ class PartQualityOut(BaseModel):
     fit_to_scan_mean_m: float | None = None
     fit_to_scan_p95_m: float | None = None
     coverage: float | None = None
+    area_change: float | None = None
     displacement_m: float | None = None
 
 
@@ -170,7 +171,9 @@ class FitQualityOut(BaseModel):
         default_factory=dict,
         description="head, torso, arm_L/R, hand_L/R, leg_L/R, foot_L/R (_L = subject's left)",
     )
-    thresholds: dict[str, dict[str, float]] = Field(default_factory=dict)
+    thresholds: dict[str, dict[str, float | None]] = Field(
+        default_factory=dict, description="figure -> suspect / failed limits (null: never)"
+    )
 
 
 class FitOut(BaseModel):

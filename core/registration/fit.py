@@ -479,7 +479,14 @@ def iter_fit(
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
     report.scan_to_fit_mean_m = float(np.mean(d))
     report.scan_to_fit_p95_m = float(np.percentile(d, 95))
-    report.quality = assess_fit(index, X, template=tpl, scan_to_fit=d, sample_ids=sample)
+    report.quality = assess_fit(
+        index,
+        X,
+        template=tpl,
+        scan_to_fit=d,
+        sample_ids=sample,
+        reference=V_base if shape_prior else None,
+    )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
     report.no_data_fraction = float(np.mean(~compatible_full))

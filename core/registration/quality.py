@@ -25,8 +25,14 @@ Per part (all distances metres):
   left out) to the scan surface (:func:`fit_to_scan_distance`);
 - ``coverage``: fraction of those vertices with a *compatible* scan point (normals less than 60°
   apart) within ``COVERAGE_DISTANCE_M`` (15 mm);
-- ``displacement_m``: distance between the centroid of the scan points assigned to the part and
-  the centroid of the points of the fitted part that lie nearest them (a part moved off its data).
+- ``area_change``: how much the part's surface area changed against a reference body, relative
+  to the whole body's: ``max(r, 1/r)``, ``r = (A_part / A_part,ref) / (A_body / A_body,ref)``
+  (1 = in proportion; a head collapsed to 70 % of its size reads 2.0). The reference is the body
+  the refinement started from (the body prior's personalised, posed template) when the caller
+  gives it, else the template (real bodies then differ by up to 1.5: heavy arms, long bones);
+- ``displacement_m``: distance between the centroid of the scan points assigned to the part
+  within ``NEAR_DISTANCE_M`` (30 mm) of the fit and the centroid of the fitted vertices nearest
+  them (a part shifted along its data).
 
 Thresholds (``THRESHOLDS``; calibrated on simulated scans ``bench.cases`` and on deliberately
 broken copies of good fits — a part moved by 3-15 cm or collapsed towards its joint; see
@@ -35,11 +41,23 @@ broken copies of good fits — a part moved by 3-15 cm or collapsed towards its 
 ======================  ===========  ==========
 figure                  suspect if   failed if
 ======================  ===========  ==========
-scan→fit p95            > 10 mm      > 25 mm
+scan→fit p95            > 10 mm      never
 fit→scan p95            > 30 mm      > 60 mm
 coverage                < 0.70       < 0.40
 displacement            > 10 mm      > 25 mm
 ======================  ===========  ==========
+
+and a part is also ``failed`` when scan data around it is unexplained (scan→fit p95 > 25 mm)
+*and* its own surface is off its data or shrunk/grown by the refinement (coverage < 0.70,
+fit→scan p95 > 30 mm, or area change against the given reference > 1.25): a head collapsed into
+the neck keeps its vertices on the neck's data (fit→scan and coverage look fine) but shrinks and
+leaves the skull's scan points unexplained. A part that slid along its data onto a neighbour's
+(a hand pulled up the forearm) shows only as unexplained scan data: ``suspect``, named.
+
+Scan→fit alone never fails a part: scan points the body does not explain may be hair, clothing,
+clutter or the floor as well as a misplaced part; a part off its data also loses coverage and
+fit→scan, and those fail it. (Measured on ``core.synth.scanner_outputs`` cases: hair, mitten or
+fist hands and floor clutter give hand/head/foot scan→fit p95 of 15-350 mm with the part in place.)
 
 A part with fewer than ``MIN_POINTS`` scan points assigned has no scan→fit figures (reported as
 NaN); it is judged by its fit→scan and coverage only. Hands and feet are held to thresholds 1.5×
@@ -80,6 +98,7 @@ COVERAGE_DISTANCE_M = 0.015
 COVERAGE_ANGLE_DEG = 60.0
 MIN_POINTS = 30
 SAMPLE_POINTS = 20_000
+NEAR_DISTANCE_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -92,11 +111,13 @@ class Threshold:
 
 
 THRESHOLDS: dict[str, Threshold] = {
-    "scan_to_fit_p95_m": Threshold(0.010, 0.025),
+    "scan_to_fit_p95_m": Threshold(0.010, float("inf")),
     "fit_to_scan_p95_m": Threshold(0.030, 0.060),
     "coverage": Threshold(0.70, 0.40, higher_is_worse=False),
     "displacement_m": Threshold(0.010, 0.025),
 }
+LOST_SCAN_TO_FIT_M = 0.025
+LOST_AREA_CHANGE = 1.25
 
 
 @dataclass
@@ -110,6 +131,7 @@ class PartQuality:
     fit_to_scan_mean_m: float
     fit_to_scan_p95_m: float
     coverage: float
+    area_change: float
     displacement_m: float
 
 
@@ -120,7 +142,7 @@ class FitQuality:
     quality: Verdict
     reasons: list[str] = field(default_factory=list)
     parts: dict[str, PartQuality] = field(default_factory=dict)
-    thresholds: dict[str, dict[str, float]] = field(default_factory=dict)
+    thresholds: dict[str, dict[str, float | None]] = field(default_factory=dict)  # None: never
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
@@ -187,6 +209,12 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
     return verdict, reasons
 
 
+def _triangle_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m,) areas of triangles F (m, 3) of vertices V (n, 3)."""
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+
+
 def scan_spacing(index: ScanIndex, n: int = 2000) -> float:
     """Typical distance between neighbouring scan points (median over a subsample), metres."""
     ids = np.linspace(0, len(index.points) - 1, min(n, len(index.points))).astype(np.int64)
@@ -217,12 +245,14 @@ def assess_fit(
     sample: int = SAMPLE_POINTS,
     scan_to_fit: np.ndarray | None = None,
     sample_ids: np.ndarray | None = None,
+    reference: np.ndarray | None = None,
 ) -> FitQuality:
     """Judge the fitted body ``X`` (13380, 3), metres, against ``scan`` (same frame).
 
     ``scan_to_fit`` (q,) with ``sample_ids`` (q,) may pass already computed distances of scan
     points ``sample_ids`` to the fitted surface; otherwise an evenly spaced subsample of at most
-    ``sample`` scan points is measured. Returns a :class:`FitQuality` (thresholds: module
+    ``sample`` scan points is measured. ``reference`` (13380, 3): the body the fit started from
+    (for ``area_change``; default the template). Returns a :class:`FitQuality` (thresholds: module
     docstring).
     """
     tpl = template or load_template()
@@ -253,6 +283,12 @@ def assess_fit(
         project=False,
     )
     covered = np.isfinite(corr.distances)
+    tri_part = labels[F[:, 0]]
+    a_fit = np.bincount(tri_part, _triangle_areas(X, F), minlength=len(names))
+    ref = tpl.V if reference is None else np.asarray(reference, dtype=np.float64)
+    a_tpl = np.bincount(tri_part, _triangle_areas(ref, F), minlength=len(names))
+    ratio = (a_fit / a_tpl) / (a_fit.sum() / a_tpl.sum())
+    area_change = np.maximum(ratio, 1.0 / np.maximum(ratio, 1e-9))
     parts: dict[str, PartQuality] = {}
     reasons: list[str] = []
     rank = {"good": 0, "suspect": 1, "failed": 2}
@@ -265,16 +301,33 @@ def assess_fit(
             d = scan_to_fit[sel]
             s2f_mean, s2f_p95 = float(d.mean()), float(np.percentile(d, 95))
             # the part's points nearest its data vs. the data itself: centroid offset
-            disp = float(np.linalg.norm(P[sel].mean(axis=0) - X[nearest[sel]].mean(axis=0)))
+            near = sel & (scan_to_fit <= NEAR_DISTANCE_M)
+            disp = float("nan")
+            if near.sum() >= MIN_POINTS:
+                disp = float(np.linalg.norm(P[near].mean(axis=0) - X[nearest[near]].mean(axis=0)))
         else:
             s2f_mean = s2f_p95 = disp = float("nan")
         figures = {
             "scan_to_fit_p95_m": s2f_p95,
             "fit_to_scan_p95_m": float(np.percentile(f2s[own], 95)),
             "coverage": float(covered[own].mean()),
+            "area_change": float(area_change[i]),
             "displacement_m": disp,
         }
         pv, pr = _judge(name, figures)
+        f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
+        off = (
+            (reference is not None and figures["area_change"] > LOST_AREA_CHANGE)
+            or figures["coverage"] < THRESHOLDS["coverage"].suspect / f
+            or figures["fit_to_scan_p95_m"] > THRESHOLDS["fit_to_scan_p95_m"].suspect * f
+        )
+        if s2f_p95 > LOST_SCAN_TO_FIT_M * f and off and pv != "failed":
+            pv = "failed"
+            pr.insert(
+                0,
+                f"{name}: lost (scan data around it unexplained, its surface "
+                f"{ratio[i] * 100:.0f} % of its proportion)",
+            )
         if n_pts < MIN_POINTS:  # data for a whole part missing: the part may be lost
             pv = "failed" if figures["coverage"] < THRESHOLDS["coverage"].failed else pv
             pr.insert(0, f"{name}: only {n_pts} scan points near it")
@@ -288,10 +341,14 @@ def assess_fit(
             fit_to_scan_mean_m=float(f2s[own].mean()),
             fit_to_scan_p95_m=figures["fit_to_scan_p95_m"],
             coverage=figures["coverage"],
+            area_change=figures["area_change"],
             displacement_m=disp,
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:
             verdict = pv
-    thresholds = {k: {"suspect": t.suspect, "failed": t.failed} for k, t in THRESHOLDS.items()}
+    thresholds = {
+        k: {"suspect": t.suspect, "failed": t.failed if np.isfinite(t.failed) else None}
+        for k, t in THRESHOLDS.items()
+    }
     return FitQuality(verdict, reasons, parts, thresholds)
