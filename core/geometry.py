@@ -56,8 +56,11 @@ def closest_point_on_triangles(
 class MeshDistance:
     """Exact distance from query points to a triangle mesh V (n, 3), F (m, 3).
 
-    Candidate triangles are those incident to the ``k`` mesh vertices nearest each query; exact
-    for points near the surface (the use here: scan-to-fit distances of a few millimetres).
+    Candidate triangles are those incident to the ``k`` mesh vertices nearest each query: the
+    distance to those triangles, never below the true distance, and equal to it unless a long
+    triangle none of whose vertices is among the ``k`` nearest is closer (template, points within
+    5 mm of the surface, k=3: 299 of 300 exact, the other 0.038 mm over; k=16 all exact;
+    ``tests/core/test_solver_geometry.py``).
     """
 
     def __init__(self, V: np.ndarray, F: np.ndarray, k: int = 4) -> None:
