@@ -9,6 +9,7 @@ decides their HTTP status. Service-side errors are raised as :class:`ApiError` w
 from __future__ import annotations
 
 import logging
+import re
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -175,16 +176,26 @@ def install(app: FastAPI) -> None:
             return JSONResponse(error_body("missing_field", msg, {"errors": errors}), 422)
         first = errors[0] if errors else {"loc": [], "msg": "invalid"}
         msg = f"{'.'.join(first['loc'])}: {first['msg']}"
-        return JSONResponse(error_body("validation_error", msg, {"errors": errors}), 422)
+        details: dict[str, Any] = {"errors": errors}
+        if len(first["loc"]) > 1:  # the first problem's field, e.g. body.keep.0 -> keep
+            details["field"] = first["loc"][1]
+        expected = ((exc.errors()[0].get("ctx") or {}).get("expected")) if errors else None
+        if first.get("type") in ("literal_error", "enum") and isinstance(expected, str):
+            details["accepted"] = re.findall(r"'([^']*)'", expected)
+        return JSONResponse(error_body("validation_error", msg, details), 422)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
         if isinstance(exc.__cause__, RecursionError):  # FastAPI's body parsing: too deep
             msg = "the JSON body is nested too deeply"
             return JSONResponse(error_body("validation_error", msg), 422)
+        if exc.status_code == 400 and exc.__cause__ is not None:  # FastAPI: unreadable body
+            msg = "the body is not JSON (UTF-8 text) this route can read"
+            return JSONResponse(error_body("validation_error", msg), 422)
         fallback = "bad_request" if exc.status_code < 500 else "internal_error"
         code = _HTTP_CODES.get(exc.status_code, fallback)
-        return JSONResponse(error_body(code, str(exc.detail)), exc.status_code)
+        headers = getattr(exc, "headers", None)  # e.g. a 405's Allow (RFC 9110)
+        return JSONResponse(error_body(code, str(exc.detail)), exc.status_code, headers=headers)
 
     @app.exception_handler(Exception)
     async def _internal(_: Request, exc: Exception) -> JSONResponse:

@@ -273,7 +273,9 @@ class SynthesizeRequest(BaseModel):
     pca: list[float] | None = Field(
         None, min_length=1, description="PCA weights (metres), at most the model's components"
     )
-    seed: int | None = Field(None, ge=0, lt=2**63, description="random body, reproducible")
+    seed: int | None = Field(
+        None, ge=0, le=2**53 - 1, description="random body, reproducible (a JSON-safe integer)"
+    )
 
 
 class SynthesizedBody(BaseModel):
@@ -369,7 +371,19 @@ class MorphRequest(BaseModel):
         json_schema_extra={"examples": [{"bodies": ["bdy_0123456789abcdef0123", "bdy_..."]}]},
     )
 
-    bodies: list[str] = Field(min_length=2, max_length=16, description="2-16 of your body ids")
+    bodies: list[str] = Field(
+        min_length=2,
+        max_length=16,
+        json_schema_extra={"uniqueItems": True},
+        description="2-16 of your body ids, each once",
+    )
+
+
+#: The template's parts (``core.template.load_template().part_names``; a test checks they agree).
+TemplatePart = Literal[
+    "head", "neck", "torso", "pelvis", "upper_arm_L", "upper_arm_R", "forearm_L", "forearm_R",
+    "hand_L", "hand_R", "thigh_L", "thigh_R", "shin_L", "shin_R", "foot_L", "foot_R",
+]  # fmt: skip
 
 
 class BodyEdit(BaseModel):
@@ -397,7 +411,7 @@ class BodyEdit(BaseModel):
         description="feature -> absolute new value (turned into a change from the body's "
         "current features); a feature may not be in both `delta` and `target`",
     )
-    keep: list[str] | None = Field(
+    keep: list[TemplatePart] | None = Field(
         None,
         max_length=16,
         description="template parts held in place, at most 16 (repeats count once; default "

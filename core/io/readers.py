@@ -90,7 +90,10 @@ def _read_all(source: Source) -> bytes:
         raise InputFormatError(f"cannot read {source}: {e.strerror}", path=str(source)) from None
 
 
-def _detect_format(source: Source, head: bytes, size: int, fmt: str | None) -> str:
+def _detect_format(
+    source: Source, head: bytes, size: int, fmt: str | None, what: str | None = None
+) -> str:
+    what = _name(source) if what is None else what
     if fmt is not None:
         f = fmt.lower().lstrip(".")
         if f == "txt":
@@ -101,7 +104,7 @@ def _detect_format(source: Source, head: bytes, size: int, fmt: str | None) -> s
             )
         return f
     if size == 0:
-        raise InputFormatError(f"{_name(source)} is empty (0 bytes); upload a non-empty scan file")
+        raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
     if not isinstance(source, bytes | bytearray | memoryview):
         ext = Path(source).suffix.lower()
         if ext in _EXT:
@@ -109,7 +112,7 @@ def _detect_format(source: Source, head: bytes, size: int, fmt: str | None) -> s
     sniffed = _sniff(head, size)
     if sniffed is None:
         raise InputFormatError(
-            f"{_name(source)}: unrecognised file format (first bytes {head[:16]!r}); "
+            f"{what}: unrecognised file format (first bytes {head[:16]!r}); "
             "supported formats are PLY, OBJ, STL, NPZ and XYZ/PTS point clouds",
             first_bytes=repr(head[:16]),
         )
@@ -1138,7 +1141,7 @@ def read_mesh(
     what = _name(source) if name is None else name
     if size == 0:
         raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
-    f = _detect_format(source, head, size, fmt)
+    f = _detect_format(source, head, size, fmt, what)
     if f == "ply":  # check limits from the header before reading the body
         _, elements, _ = _ply_header(head, what)
         _check_limits(*_ply_counts(elements), max_vertices, max_faces, what)
@@ -1186,7 +1189,7 @@ def inspect_mesh_header(
     what = _name(path_or_bytes) if name is None else name
     if size == 0:
         raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
-    f = _detect_format(path_or_bytes, head, size, fmt)
+    f = _detect_format(path_or_bytes, head, size, fmt, what)
     out: dict[str, Any]
     if f == "ply":
         pfmt, elements, off = _ply_header(head, what)

@@ -282,3 +282,33 @@ def test_edit_keep_list_is_bounded(client):
 def test_unknown_id_is_not_echoed_whole(client):
     r = client.get("/v1/scans/" + "x" * 5_000)
     assert r.status_code == 404 and len(r.content) < 1_000
+
+
+def test_unrecognised_upload_named_by_its_filename(client, server):
+    """Found by schemathesis: the format sniffer named the server's temp file."""
+    files = {"scan": ("scan.png", b"\x89PNG\r\n\x1a\n" + bytes(100), "image/png")}
+    r = client.post("/v1/scans", files=files)
+    assert r.status_code == 422, r.text
+    msg = r.json()["error"]["message"]
+    assert msg.startswith("scan.png: unrecognised file format"), msg
+    assert "/tmp" not in msg and str(server["data"]) not in msg
+
+
+def test_405_says_what_is_allowed(client):
+    r = client.request("TRACE", "/v1/models")
+    assert r.status_code == 405 and "GET" in r.headers["allow"]
+
+
+def test_schema_template_parts_are_the_templates():
+    from typing import get_args
+
+    from core.template import load_template
+    from service.schemas import TemplatePart
+
+    assert get_args(TemplatePart) == tuple(load_template().part_names)
+
+
+def test_unreadable_json_body_is_422(client):
+    r = client.post("/v1/models/default/synthesize", content=b"5R\xff,\xfe\xfepb",
+                    headers={"content-type": "application/json"})  # fmt: skip
+    assert r.status_code == 422, r.text
