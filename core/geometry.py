@@ -1,10 +1,59 @@
-"""Small geometric helpers: exact point-to-mesh distances."""
+"""Small geometric helpers: face and vertex normals, point-to-mesh distances.
+
+The one implementation of each (``core.io``, ``core.registration``, ``core.synth`` and the
+template import these).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
+
+
+def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted face normals (m, 3): cross products, length = 2 × triangle area."""
+    V = np.asarray(V, dtype=np.float64)
+    a = V[F[:, 0]]
+    return np.cross(V[F[:, 1]] - a, V[F[:, 2]] - a)
+
+
+def normalize(N: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """Rows of N (n, 3) scaled to unit length; zero or non-finite rows become ``fallback``."""
+    N = np.asarray(N, dtype=np.float64)
+    L = np.linalg.norm(N, axis=1)
+    ok = np.isfinite(L) & (L > 1e-30)
+    out = np.empty_like(N)
+    out[ok] = N[ok] / L[ok, None]
+    out[~ok] = np.asarray(fallback, dtype=np.float64)
+    return out
+
+
+def vertex_normals(
+    V: np.ndarray,
+    F: np.ndarray | None,
+    *,
+    fallback=(0.0, 0.0, 0.0),
+    face_normals: np.ndarray | None = None,
+) -> np.ndarray:
+    """Area-weighted unit vertex normals (n, 3) float64 of a triangle mesh V (n, 3), F (m, 3).
+
+    Vertices without incident area get ``fallback`` (default zero rows); ``face_normals`` may
+    pass precomputed :func:`face_normals`.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    n = len(V)
+    N = np.zeros((n, 3))
+    if F is not None and len(F):
+        F = np.asarray(F)
+        fn = _face_normals(V, F) if face_normals is None else face_normals
+        idx = F.ravel()
+        for c in range(3):
+            N[:, c] = np.bincount(idx, weights=np.repeat(fn[:, c], 3), minlength=n)
+    return normalize(N, fallback)
+
+
+_face_normals = face_normals
 
 
 def closest_point_on_triangles(

@@ -110,13 +110,9 @@ class Template:
         V = self.V if V is None else np.asarray(V, dtype=np.float64)
         if V.shape != self.V.shape:
             raise ValueError(f"V must have shape {self.V.shape}, got {V.shape}")
-        F = self.F
-        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # 2 x area
-        N = np.zeros_like(V)
-        for k in range(3):
-            np.add.at(N, F[:, k], fn)
-        n = np.linalg.norm(N, axis=1, keepdims=True)
-        return N / np.maximum(n, 1e-300)
+        from core.geometry import vertex_normals
+
+        return vertex_normals(V, self.F)
 
     # ------------------------------------------------------------------ rig
 

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from core.geometry import vertex_normals
+
+__all__ = ["vertex_normals"]  # re-exported: the registration's callers import it from here
+
 
 def unique_edges(F: np.ndarray) -> np.ndarray:
     """Unique undirected edges of a triangle mesh: (E, 2) int64, each row sorted."""
@@ -111,13 +115,3 @@ def make_level(
         data_mask=np.asarray(data_mask, dtype=bool),
         vertex_ids=np.asarray(vertex_ids, dtype=np.int64),
     )
-
-
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (n, 3) of a triangle mesh."""
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    n = len(V)
-    idx = F.ravel()
-    N = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=n) for c in range(3)], axis=1)
-    norm = np.linalg.norm(N, axis=1, keepdims=True)
-    return N / np.maximum(norm, 1e-20)

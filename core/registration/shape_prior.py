@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from core.registration.correspondence import ScanIndex
 from core.registration.initialization import Similarity, umeyama
@@ -153,15 +154,6 @@ def _skew_rows(v: np.ndarray) -> np.ndarray:
     Z[:, 1, 0], Z[:, 1, 2] = v[:, 2], -v[:, 0]
     Z[:, 2, 0], Z[:, 2, 1] = -v[:, 1], v[:, 0]
     return Z
-
-
-def _rodrigues(w: np.ndarray) -> np.ndarray:
-    """(3,) axis-angle -> (3, 3) rotation."""
-    th = float(np.linalg.norm(w))
-    if th < 1e-12:
-        return np.eye(3)
-    K = _skew_rows((w / th)[None])[0]
-    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
 
 
 def _scan_to_template(
@@ -394,7 +386,7 @@ def fit_body_prior(
             j = art.bones[a]
             p = art.rig.parents[j]
             Rp = aux["R"][p] if p >= 0 else np.eye(3)
-            local[a] = Rp.T @ _rodrigues(dw) @ Rp @ local[a]
+            local[a] = Rp.T @ Rotation.from_rotvec(dw).as_matrix() @ Rp @ local[a]
         # similarity from markers and data pairs on the updated body
         rest = V0 + U @ c
         Xp, aux = art.pose(rest, local)

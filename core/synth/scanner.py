@@ -22,6 +22,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.spatial import cKDTree
 
+from core.geometry import vertex_normals
 from core.template import load_template
 
 # file-from-canonical axis maps: canonical is +Y up, +Z front, +X left.
@@ -126,16 +127,6 @@ class SimScan:
     V_truth: np.ndarray
     meta: dict = field(default_factory=dict)
     colors: np.ndarray | None = None
-
-
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals: (n, 3) float64 (zero rows for unreferenced vertices)."""
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V, dtype=np.float64)
-    for k in range(3):
-        np.add.at(N, F[:, k], fn)
-    n = np.linalg.norm(N, axis=1, keepdims=True)
-    return np.divide(N, n, out=np.zeros_like(N), where=n > 0)
 
 
 def _rasterize(
