@@ -200,7 +200,7 @@ def _fit_vertices(store: BlobStore, tenant: str, fit: Fit) -> np.ndarray:
     """The fitted body of a succeeded fit, at full precision (its PLY result holds doubles)."""
     from core.io import read_mesh
     from core.template import load_template
-    from worker.jobs import result_key
+    from service.fit_job import result_key
 
     if fit.state != "succeeded":
         raise ApiError("fit_not_ready", f"fit {fit.id} is {fit.state}", state=fit.state)

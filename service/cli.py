@@ -37,7 +37,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "core" / "assets" / "exa
 
 
 # Modules exposing ``register(subparsers)``, imported when present.
-PLUGIN_MODULES = ("service.commands",)
+PLUGIN_MODULES = ("service.commands", "worker.cli")
 
 
 class CliError(Exception):

@@ -1,5 +1,5 @@
-"""Service subcommands of ``bodyspace``: ``serve``, ``worker``, ``keys create --tenant NAME``,
-``keys list [--tenant NAME]``, ``keys revoke ID_OR_PREFIX``.
+"""Service subcommands of ``bodyspace``: ``serve``, ``keys create --tenant NAME``,
+``keys list [--tenant NAME]``, ``keys revoke ID_OR_PREFIX`` (``worker`` is :mod:`worker.cli`'s).
 
 Registered by ``service/cli.py`` through :func:`register`. All read the same settings
 (``BODYSPACE_*``, see :mod:`service.settings`).
@@ -137,22 +137,6 @@ def _serve_processes(args: argparse.Namespace) -> int:
     return code
 
 
-def _worker(args: argparse.Namespace) -> int:
-    from service.settings import get_settings
-
-    if not get_settings().broker_url:
-        print(
-            "bodyspace: error: `bodyspace worker` needs BODYSPACE_BROKER_URL (e.g. "
-            "redis://127.0.0.1:6379/0); without a broker `bodyspace serve` runs fits itself",
-            flush=True,
-        )
-        return 2
-    from worker.tasks import main
-
-    main(concurrency=args.concurrency, loglevel=args.log_level.upper(), hostname=args.hostname)
-    return 0
-
-
 def _keys_create(args: argparse.Namespace) -> int:
     from service.auth import create_key
     from service.db import migrate, session_scope
@@ -208,7 +192,7 @@ def _keys_revoke(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``serve``, ``worker`` and ``keys`` to the ``bodyspace`` command line."""
+    """Add ``serve`` and ``keys`` to the ``bodyspace`` command line."""
     p = subparsers.add_parser("serve", help="run the HTTP API (uvicorn)")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
@@ -221,12 +205,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "share the data folder and one of them runs the fits (default 1)",
     )
     p.set_defaults(func=_serve)
-
-    p = subparsers.add_parser("worker", help="run a Celery worker (distributed mode)")
-    p.add_argument("--concurrency", type=int, default=None, help="pool processes (default: CPUs)")
-    p.add_argument("--hostname", default=None, help="Celery node name (default: celery@HOST)")
-    p.add_argument("--log-level", default="info")
-    p.set_defaults(func=_worker)
 
     p = subparsers.add_parser("keys", help="manage API keys")
     ks = p.add_subparsers(dest="keys_command", metavar="ACTION", required=True)

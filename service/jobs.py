@@ -4,7 +4,7 @@
 - :class:`CeleryRunner` (``BODYSPACE_BROKER_URL`` set): publishes to Celery over Redis; fits run in
   ``bodyspace worker`` processes, never in the API process.
 
-Both take fit ids only; the job itself is :func:`worker.jobs.run_fit`.
+Both take fit ids only; the job itself is :func:`service.fit_job.run_fit`.
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ class JobRunner(Protocol):
 
 
 def _pool_init(parent_pid: int) -> None:
+    from service.fit_job import warm_up
     from service.runtime import die_with_parent
-    from worker.jobs import warm_up
 
     # A pool process dies with its API process (SIGKILL, OOM killer): no orphan keeps running
     # (or storing) a fit that the next runner re-runs (issue 15).
@@ -72,7 +72,7 @@ def _tenant_of(fit_id: str, settings: Settings) -> str | None:
 
 
 def _run(fit_id: str, task_id: str) -> str:
-    from worker.jobs import run_fit
+    from service.fit_job import run_fit
 
     return run_fit(fit_id, task_id)
 
@@ -150,7 +150,7 @@ class EmbeddedRunner:
         threading.Thread(target=self._loop, daemon=True, name="embedded-runner").start()
 
     def _lead(self) -> None:
-        from worker.jobs import recover
+        from service.fit_job import recover
 
         with self._lock:
             self._pool = self._new_pool()
@@ -161,7 +161,7 @@ class EmbeddedRunner:
     def _loop(self) -> None:
         """Leader: pick up fits accepted by other processes, and sweep now and then. Others:
         take over when the leader's process is gone."""
-        from worker.jobs import recover
+        from service.fit_job import recover
 
         next_sweep = time.monotonic() + self.settings.sweep_interval_s
         while not self._stop.is_set():
@@ -267,7 +267,7 @@ class EmbeddedRunner:
         self._dispatch()
 
     def _rebuild(self) -> None:
-        from worker.jobs import recover
+        from service.fit_job import recover
 
         with self._lock:
             if self._pool is not None:
@@ -331,7 +331,7 @@ class CeleryRunner:
         """Workers recover jobs on their start and periodically; the API only publishes."""
 
     def submit(self, fit_id: str) -> None:
-        from worker.tasks import submit
+        from service.celery_app import submit
 
         try:
             submit(fit_id)

@@ -20,6 +20,7 @@ from service.blobs import BlobStore, sha256_file
 from service.db import aware, session_scope
 from service.deps import RunnerDep, SessionDep, SettingsDep, StoreDep, TenantId, require_json
 from service.errors import ApiError, clip
+from service.fit_job import RESULT_FORMATS, result_key
 from service.models import Blob, Fit, Scan, Tenant, new_id, utcnow
 from service.privacy import scrub_deleted
 from service.schemas import (
@@ -33,7 +34,6 @@ from service.schemas import (
 )
 from service.settings import Settings
 from service.uploads import Form, parse_multipart
-from worker.jobs import RESULT_FORMATS, result_key
 
 log = logging.getLogger("bodyspace.service")
 

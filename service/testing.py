@@ -111,7 +111,7 @@ def start_server(env: Mapping[str, str], port: int, log: Path, timeout: float = 
 
 def start_worker(env: Mapping[str, str], log: Path, name: str, concurrency: int = 1) -> Proc:
     """``bodyspace worker`` (Celery, prefork pool)."""
-    args = [sys.executable, "-m", "service.commands", "worker", "--hostname", f"{name}@%h"]
+    args = [sys.executable, "-m", "worker.cli", "worker", "--hostname", f"{name}@%h"]
     return Proc([*args, "--concurrency", str(concurrency)], env, log)
 
 

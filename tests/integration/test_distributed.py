@@ -12,8 +12,8 @@ FAST = {"schedule": "fast"}
 
 
 def _waiting(redis_client, queue: str) -> int:
-    """Messages waiting in ``queue`` (one Redis list per priority: worker.tasks.MAX_PRIORITY)."""
-    from worker.tasks import MAX_PRIORITY
+    """Messages waiting in ``queue`` (a Redis list per priority, service.celery_app)."""
+    from service.celery_app import MAX_PRIORITY
 
     names = [queue] + [f"{queue}\x06\x16{p}" for p in range(1, MAX_PRIORITY + 1)]
     return sum(redis_client.llen(n) for n in names)
