@@ -221,7 +221,7 @@ def _body_colors(store: BlobStore, b: Body) -> np.ndarray | None:
     """(13380, 3) uint8 colours of a body from a fit of a coloured scan (its edits and poses
     too: same vertices), read from the fit's PLY result; None for every other body."""
     from core.io import read_mesh
-    from worker.jobs import result_key
+    from service.fit_job import result_key
 
     if b.fit_id is None or b.source not in ("fit", "edit", "pose"):
         return None
