@@ -2,7 +2,10 @@
 
 ``fit`` optimises one 3×4 affine per template vertex under E = α·E_d + β·E_s + γ·E_m, following
 a :class:`Schedule` from a low- to the full-resolution template, and returns the fitted body in
-template vertex order.
+template vertex order. The steps, each a function here: :func:`screen_and_align` (marker
+screening, initial similarity) → :func:`initial_body` (the body prior) → :class:`SolverFrame` →
+:func:`one_stage` per schedule stage → :func:`final_report` (distances, per-part quality); then
+:func:`fit` retries a fit whose quality is not good (:data:`RETRIES`).
 
 Solver units: positions are expressed in millimetres about the body's centre inside the solver
 (``unit_scale=1000``), as the paper's CAESAR scans were; the α/β/γ weights are the paper's.
@@ -32,7 +35,7 @@ from core.registration.operators import (
     vertex_normals,
 )
 from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit, part_labels
-from core.registration.schedule import Schedule
+from core.registration.schedule import Schedule, Stage
 from core.registration.shape_prior import fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
@@ -237,16 +240,67 @@ def iter_fit(
     _check_scan(scan)
     ops = template_operators(template, n_low=n_low, unit_scale=unit_scale)
     tpl = ops.template
-    u = unit_scale
     report = FitReport(scan_vertices=len(scan.V), scan_faces=0 if scan.F is None else len(scan.F))
     report.notes.extend(scan.notes)
     if scan.frame is not None:
         report.units, report.up = scan.frame.units, scan.frame.up
 
     index = ScanIndex(scan, confidence_full_at=confidence_full_at)
+    markers, align, consistent = screen_and_align(
+        index, tpl, markers, report,
+        marker_far_distance=marker_far_distance,
+        initial_similarity=initial_similarity, shape_prior=shape_prior,
+    )  # fmt: skip
+    body = initial_body(
+        index, ops, markers, align, consistent, report,
+        shape_prior=shape_prior, max_distance=max_distance,
+        marker_outlier_distance=marker_outlier_distance, prior_options=prior_options,
+        marker_trust=marker_trust, part_weights=part_weights,
+    )  # fmt: skip
+    frame = SolverFrame.of(body, unit_scale)
+    marker_pos = frame.to_solver(
+        np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
+    )
+    Vs = frame.to_solver_template(body.V)
+    full = replace(ops.full, V=Vs)
+    needs_low = any(st.resolution == "low" for st in schedule.stages)
+    low = replace(ops.low, V=Vs[ops.low.vertex_ids]) if needs_low else None
+    state = _StageState()
+    for si, st in enumerate(schedule.stages):
+        want = low if st.resolution == "low" else full
+        assert want is not None
+        state.enter(want, frame.A0, ops)
+        yield from one_stage(
+            si, len(schedule.stages), st, state, index, ops, full, frame, body, marker_pos,
+            report, max_distance=max_distance, max_angle_deg=max_angle_deg, t_start=t_start,
+        )  # fmt: skip
+    yield final_report(
+        scan, index, ops, full, frame, body, state, report,
+        max_distance=max_distance, max_angle_deg=max_angle_deg,
+        shape_prior=shape_prior, t_start=t_start,
+    )  # fmt: skip
 
-    # Markers: unknown names are an error (readers reject them earlier); a marker is dropped
-    # only when both the scan and its neighbours contradict it (core.registration.markers).
+
+# --------------------------------------------------------------------------- the named steps
+
+
+def screen_and_align(
+    index: ScanIndex,
+    tpl: Template,
+    markers: dict[str, np.ndarray],
+    report: FitReport,
+    *,
+    marker_far_distance: float,
+    initial_similarity: Similarity | None,
+    shape_prior: bool,
+) -> tuple[dict[str, np.ndarray], MarkerAlignment, dict[str, bool]]:
+    """Marker screening and the initial similarity.
+
+    Unknown names are an error (readers reject them earlier); a marker is dropped only when both
+    the scan and its neighbours contradict it (``core.registration.markers``); the similarity
+    comes from the markers that agree (``align_markers``), the others stay in as evidence.
+    Returns the kept markers, the alignment (``used`` = kept) and who agrees with neighbours.
+    """
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in markers.items()}
     unknown = sorted(set(markers) - set(tpl.landmarks))
     if unknown:
@@ -269,7 +323,6 @@ def iter_fit(
             markers.pop(k)
         consistent = screening.consistent
     if markers or initial_similarity is None:
-        # the similarity from the markers that agree; the others stay in as evidence (weighed)
         align = align_markers(tl, markers)
         report.warnings.extend(align.warnings)
         align = MarkerAlignment(align.similarity, list(markers), [], align.residuals)
@@ -279,201 +332,281 @@ def iter_fit(
         align = MarkerAlignment(initial_similarity, [], [], {})
     report.markers_used = align.used
     report.marker_residuals_m = align.residuals
-    sim = align.similarity
+    return markers, align, consistent
+
+
+@dataclass
+class InitialBody:
+    """The body the affine refinement starts from.
+
+    V : (13380, 3) metres (the prior's posed, personalised body, already in the scan frame; or
+    the template). sim : template-side → scan similarity still to apply (identity after the
+    prior). marker_vid : (km,) marked vertices. marker_w : (km,) robust marker weights (E_m).
+    """
+
+    V: np.ndarray
+    sim: Similarity
+    marker_vid: np.ndarray
+    marker_w: np.ndarray
+
+
+def initial_body(
+    index: ScanIndex,
+    ops: TemplateOperators,
+    markers: dict[str, np.ndarray],
+    align: MarkerAlignment,
+    consistent: dict[str, bool],
+    report: FitReport,
+    *,
+    shape_prior: bool,
+    max_distance: float,
+    marker_outlier_distance: float,
+    prior_options: dict[str, Any] | None,
+    marker_trust: float | None,
+    part_weights: dict[str, float] | None,
+) -> InitialBody:
+    """Initial body: the body prior (``fit_body_prior``: shape, pose, similarity) with annealed
+    robust marker weights, floored for markers their neighbours agree with; or the template."""
+    tpl = ops.template
     marker_vid = np.array([tpl.landmarks[k] for k in align.used], dtype=np.int64)
-    marker_w = np.ones(len(align.used))
-    F_full = np.asarray(tpl.F, dtype=np.int64)
-    V_base = tpl.V
-    if shape_prior:
-        floor = np.array([CONSISTENT_WEIGHT_FLOOR * consistent.get(k, False) for k in align.used])
-        if marker_trust is not None:
-            floor = np.full(len(align.used), float(marker_trust))
-        vw = None
-        if part_weights:
-            labels, pnames = part_labels(tpl)
-            vw = np.ones(tpl.n_vertices)
-            for pname, f in part_weights.items():
-                vw[labels == pnames.index(pname)] = float(f)
-        prior = fit_body_prior(
-            index,
-            tpl.V,
-            F_full,
-            marker_vid,
-            np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3),
-            sim,
-            data_mask=ops.full.data_mask,
-            max_distance=max_distance,
-            marker_floor=floor,
-            vertex_weight=vw,
-            **(prior_options or {}),
-        )
-        report.scale = prior.similarity.s
-        report.marker_residuals_m = {
-            k: float(r) for k, r in zip(align.used, prior.marker_residuals_m, strict=True)
-        }
-        report.notes.append(
-            f"body prior: {len(prior.coefficients)} shape coefficients, "
-            f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
-            f"data rms {prior.rms_data_m * 1000:.1f} mm"
-        )
-        # markers the fitted body cannot reach and their neighbours contradict: weighed down
-        # (robust weights of the prior, carried into E_m), never dropped for the prior's sake
-        marker_w = prior.marker_weights.copy()
-        for name, r, wm in zip(align.used, prior.marker_residuals_m, marker_w, strict=True):
-            if r > marker_outlier_distance:
-                how = (
-                    "kept: it agrees with its neighbours"
-                    if consistent.get(name, False)
-                    else f"weighed down to {wm:.2f} (misplaced or misnamed?)"
-                )
-                report.warnings.append(
-                    f"marker {name} is {r * 100:.1f} cm from the fitted body: {how}"
-                )
-        report.marker_weights = {k: float(w) for k, w in zip(align.used, marker_w, strict=True)}
-        # the affine fit starts from the posed, personalised body, already in the scan frame
-        V_base = prior.X
-        sim = Similarity(1.0, np.eye(3), np.zeros(3))
-    else:
-        report.scale = sim.s
+    if not shape_prior:
+        report.scale = align.similarity.s
         report.marker_weights = {k: 1.0 for k in align.used}
-
-    # Solver frame: millimetres (u) about the similarity-mapped template centre.
-    cb = V_base.mean(axis=0)  # template-side centre, metres
-    c_scan = sim.apply(cb[None])[0]
-
-    def to_solver(X: np.ndarray) -> np.ndarray:
-        return (X - c_scan) * u
-
-    def to_world(Xs: np.ndarray) -> np.ndarray:
-        return Xs / u + c_scan
-
-    A0 = np.hstack([sim.s * sim.R, np.zeros((3, 1))])  # (3, 4) in solver units
-    marker_pos = to_solver(
-        np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
+        return InitialBody(tpl.V, align.similarity, marker_vid, np.ones(len(align.used)))
+    floor = np.array([CONSISTENT_WEIGHT_FLOOR * consistent.get(k, False) for k in align.used])
+    if marker_trust is not None:
+        floor = np.full(len(align.used), float(marker_trust))
+    vw = None
+    if part_weights:
+        labels, pnames = part_labels(tpl)
+        vw = np.ones(tpl.n_vertices)
+        for pname, f in part_weights.items():
+            vw[labels == pnames.index(pname)] = float(f)
+    prior = fit_body_prior(
+        index,
+        tpl.V,
+        np.asarray(tpl.F, dtype=np.int64),
+        marker_vid,
+        np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3),
+        align.similarity,
+        data_mask=ops.full.data_mask,
+        max_distance=max_distance,
+        marker_floor=floor,
+        vertex_weight=vw,
+        **(prior_options or {}),
     )
-    Vs = (V_base - cb) * u
-    full = replace(ops.full, V=Vs)
-    needs_low = any(st.resolution == "low" for st in schedule.stages)
-    low = replace(ops.low, V=Vs[ops.low.vertex_ids]) if needs_low else None
-    low_pos = {int(v): i for i, v in enumerate(ops.low.vertex_ids)} if needs_low else {}
+    report.scale = prior.similarity.s
+    report.marker_residuals_m = {
+        k: float(r) for k, r in zip(align.used, prior.marker_residuals_m, strict=True)
+    }
+    report.notes.append(
+        f"body prior: {len(prior.coefficients)} shape coefficients, "
+        f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
+        f"data rms {prior.rms_data_m * 1000:.1f} mm"
+    )
+    # markers the fitted body cannot reach and their neighbours contradict: weighed down
+    # (robust weights of the prior, carried into E_m), never dropped for the prior's sake
+    marker_w = prior.marker_weights.copy()
+    for name, r, wm in zip(align.used, prior.marker_residuals_m, marker_w, strict=True):
+        if r > marker_outlier_distance:
+            how = (
+                "kept: it agrees with its neighbours"
+                if consistent.get(name, False)
+                else f"weighed down to {wm:.2f} (misplaced or misnamed?)"
+            )
+            report.warnings.append(f"marker {name} is {r * 100:.1f} cm from the fitted body: {how}")
+    report.marker_weights = {k: float(w) for k, w in zip(align.used, marker_w, strict=True)}
+    return InitialBody(prior.X, Similarity(1.0, np.eye(3), np.zeros(3)), marker_vid, marker_w)
 
-    def x_from_affines(A: np.ndarray) -> np.ndarray:  # (n,3,4) -> (4n,3)
-        return np.ascontiguousarray(A.transpose(0, 2, 1)).reshape(-1, 3)
 
-    def affines_from_x(x: np.ndarray) -> np.ndarray:
-        return x.reshape(-1, 4, 3).transpose(0, 2, 1)
+@dataclass
+class SolverFrame:
+    """Solver frame: millimetres (``u``) about the similarity-mapped body centre.
+
+    A scan-frame point x (metres) is ``(x - c_scan) · u`` in the solver; a template-side point v
+    is ``(v - cb) · u`` and the initial affine ``A0`` (3, 4) maps it (``[s R | 0]``).
+    """
+
+    u: float
+    cb: np.ndarray  # (3,) template-side centre, metres
+    c_scan: np.ndarray  # (3,) its image in the scan frame, metres
+    A0: np.ndarray  # (3, 4)
+
+    @classmethod
+    def of(cls, body: InitialBody, u: float) -> SolverFrame:
+        cb = body.V.mean(axis=0)
+        sim = body.sim
+        A0 = np.hstack([sim.s * sim.R, np.zeros((3, 1))])
+        return cls(u, cb, sim.apply(cb[None])[0], A0)
+
+    def to_solver(self, X: np.ndarray) -> np.ndarray:
+        return (X - self.c_scan) * self.u
+
+    def to_world(self, Xs: np.ndarray) -> np.ndarray:
+        return Xs / self.u + self.c_scan
+
+    def to_solver_template(self, V: np.ndarray) -> np.ndarray:
+        return (V - self.cb) * self.u
+
+    def affines_to_world(self, A: np.ndarray) -> np.ndarray:
+        """Solver affines (n, 3, 4) → metres: ``x = A_s (u (v - cb)) / u + c_scan``."""
+        A_m = A.copy()
+        A_m[:, :, 3] = (
+            A[:, :, 3] / self.u + self.c_scan - np.einsum("nij,j->ni", A[:, :, :3], self.cb)
+        )
+        return A_m
+
+
+def x_from_affines(A: np.ndarray) -> np.ndarray:
+    """(n, 3, 4) affines → (4n, 3) solver unknowns (row c of T_i in x[4i:4i+4, c])."""
+    return np.ascontiguousarray(A.transpose(0, 2, 1)).reshape(-1, 3)
+
+
+def affines_from_x(x: np.ndarray) -> np.ndarray:
+    """(4n, 3) solver unknowns → (n, 3, 4) affines."""
+    return x.reshape(-1, 4, 3).transpose(0, 2, 1)
+
+
+@dataclass
+class _StageState:
+    """The refinement's running state across stages: level, its solver, unknowns, regulariser."""
 
     level: ResolutionLevel | None = None
     solver: AffineSolver | None = None
     x: np.ndarray | None = None
     x_reg: np.ndarray | None = None
-    n_stages = len(schedule.stages)
-    for si, st in enumerate(schedule.stages):
-        t_stage = time.perf_counter()
-        want = low if st.resolution == "low" else full
-        if level is not want:
-            if level is None:
-                x = x_from_affines(np.broadcast_to(A0, (want.n, 3, 4)))
-            else:  # low -> high: blend the low-resolution affines
-                A_low = affines_from_x(x).reshape(level.n, 12)
-                x = x_from_affines((ops.hierarchy.upsample @ A_low).reshape(-1, 3, 4))
-            x_reg = x.copy()
-            level = want
-            solver = AffineSolver(level)
-        assert solver is not None and x is not None and x_reg is not None
-        solver.reset()
-        if level is low:
-            m_idx = np.array([low_pos[int(v)] for v in marker_vid], dtype=np.int64)
-        else:
-            m_idx = marker_vid
-        n_fact = 0
-        n_reused = 0
-        converged = False
-        en: dict[str, float] = {}
-        it = 0
-        for it in range(st.max_iterations):
-            A = affines_from_x(x)
-            Xs = apply_affines(A, level.V)
-            if st.alpha > 0:
-                # normals of the deformed full mesh, sampled at this level's vertices
-                if level is full:
-                    X_full = Xs
-                else:
-                    A_full = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
-                    X_full = apply_affines(A_full, full.V)
-                N = vertex_normals(X_full, F_full)[level.vertex_ids]
-                corr = index.closest_compatible(
-                    to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
-                )
-                w = corr.weights * level.data_mask
-                d_idx = np.flatnonzero(w > 0)
-                terms = SystemTerms(
-                    st.alpha,
-                    st.beta,
-                    st.gamma,
-                    d_idx,
-                    w[d_idx],
-                    to_solver(corr.targets[d_idx]),
-                    m_idx,
-                    marker_pos,
-                    marker_w,
-                )
-            else:
-                w = np.zeros(level.n)
-                terms = SystemTerms(
-                    st.alpha,
-                    st.beta,
-                    st.gamma,
-                    np.zeros(0, np.int64),
-                    np.zeros(0),
-                    np.zeros((0, 3)),
-                    m_idx,
-                    marker_pos,
-                    marker_w,
-                )
-            x_new, stats = solver.solve(terms, x, x_reg)
-            n_fact += int(stats.factorized)
-            n_reused += int(not stats.factorized)
-            X_new = apply_affines(affines_from_x(x_new), level.V)
-            step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / u
-            x = x_new
-            en = energies(level, terms, x)
-            yield Progress(si, n_stages, it, st.resolution, en, step, time.perf_counter() - t_start)
-            if step < st.tolerance_m:
-                converged = True
-                break
-        report.stages.append(
-            StageReport(
-                si,
-                st.alpha,
-                st.beta,
-                st.gamma,
-                st.resolution,
-                it + 1,
-                converged,
-                en,
-                time.perf_counter() - t_stage,
-                n_fact,
-                n_reused,
-            )
-        )
 
-    if level is None or x is None:  # no refinement stage: the body prior's result
-        A = np.broadcast_to(A0, (full.n, 3, 4)).copy()
+    def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
+        """Switch to resolution ``want`` (start from A0, or blend low-resolution affines up)."""
+        if self.level is not want:
+            if self.level is None or self.x is None:
+                self.x = x_from_affines(np.broadcast_to(A0, (want.n, 3, 4)))
+            else:  # low -> high: blend the low-resolution affines
+                A_low = affines_from_x(self.x).reshape(self.level.n, 12)
+                self.x = x_from_affines((ops.hierarchy.upsample @ A_low).reshape(-1, 3, 4))
+            self.x_reg = self.x.copy()
+            self.level = want
+            self.solver = AffineSolver(want)
+        assert self.solver is not None
+        self.solver.reset()
+
+
+def one_stage(
+    si: int,
+    n_stages: int,
+    st: Stage,
+    state: _StageState,
+    index: ScanIndex,
+    ops: TemplateOperators,
+    full: ResolutionLevel,
+    frame: SolverFrame,
+    body: InitialBody,
+    marker_pos: np.ndarray,
+    report: FitReport,
+    *,
+    max_distance: float,
+    max_angle_deg: float,
+    t_start: float,
+) -> Iterator[Progress]:
+    """One stage of the schedule: correspondence updates (closest compatible points, E_d with
+    confidence weights) and solves of α·E_d + β·E_s + γ·E_m until the largest step is below the
+    stage's tolerance; yields :class:`Progress`, appends a :class:`StageReport`."""
+    t_stage = time.perf_counter()
+    level, solver = state.level, state.solver
+    assert level is not None and solver is not None and state.x is not None
+    assert state.x_reg is not None
+    if level is not full:
+        low_pos = {int(v): i for i, v in enumerate(level.vertex_ids)}
+        m_idx = np.array([low_pos[int(v)] for v in body.marker_vid], dtype=np.int64)
     else:
+        m_idx = body.marker_vid
+    F_full = np.asarray(ops.template.F, dtype=np.int64)
+    x = state.x
+    n_fact = n_reused = 0
+    converged = False
+    en: dict[str, float] = {}
+    it = 0
+    for it in range(st.max_iterations):
         A = affines_from_x(x)
-        if level is not full:
-            A = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
-    X = to_world(apply_affines(A, full.V))
+        Xs = apply_affines(A, level.V)
+        if st.alpha > 0:
+            # normals of the deformed full mesh, sampled at this level's vertices
+            if level is full:
+                X_full = Xs
+            else:
+                A_full = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
+                X_full = apply_affines(A_full, full.V)
+            N = vertex_normals(X_full, F_full)[level.vertex_ids]
+            corr = index.closest_compatible(
+                frame.to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
+            )
+            w = corr.weights * level.data_mask
+            d_idx = np.flatnonzero(w > 0)
+            d_w, d_t = w[d_idx], frame.to_solver(corr.targets[d_idx])
+        else:
+            d_idx, d_w, d_t = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+        terms = SystemTerms(
+            st.alpha, st.beta, st.gamma, d_idx, d_w, d_t, m_idx, marker_pos, body.marker_w
+        )
+        x_new, stats = solver.solve(terms, x, state.x_reg)
+        n_fact += int(stats.factorized)
+        n_reused += int(not stats.factorized)
+        X_new = apply_affines(affines_from_x(x_new), level.V)
+        step = float(np.max(np.linalg.norm(X_new - Xs, axis=1))) / frame.u
+        x = x_new
+        state.x = x
+        en = energies(level, terms, x)
+        yield Progress(si, n_stages, it, st.resolution, en, step, time.perf_counter() - t_start)
+        if step < st.tolerance_m:
+            converged = True
+            break
+    report.stages.append(
+        StageReport(
+            si,
+            st.alpha,
+            st.beta,
+            st.gamma,
+            st.resolution,
+            it + 1,
+            converged,
+            en,
+            time.perf_counter() - t_stage,
+            n_fact,
+            n_reused,
+        )
+    )
+
+
+def final_report(
+    scan: Scan,
+    index: ScanIndex,
+    ops: TemplateOperators,
+    full: ResolutionLevel,
+    frame: SolverFrame,
+    body: InitialBody,
+    state: _StageState,
+    report: FitReport,
+    *,
+    max_distance: float,
+    max_angle_deg: float,
+    shape_prior: bool,
+    t_start: float,
+) -> FitResult:
+    """Final report: the fitted body in metres, its data weights and no-data fraction, the
+    scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``)."""
+    F_full = np.asarray(ops.template.F, dtype=np.int64)
+    if state.level is None or state.x is None:  # no refinement stage: the body prior's result
+        A = np.broadcast_to(frame.A0, (full.n, 3, 4)).copy()
+    else:
+        A = affines_from_x(state.x)
+        if state.level is not full:
+            A = (ops.hierarchy.upsample @ A.reshape(state.level.n, 12)).reshape(-1, 3, 4)
+    X = frame.to_world(apply_affines(A, full.V))
     # final correspondences, for the data weights and the no-data fraction of the result
     final = index.closest_compatible(
         X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg
     )
-    compatible_full = final.weights > 0
     weights_full = final.weights * ops.full.data_mask
-    # affines in metres: x_world = A_s (u (v - cb)) / u + c_scan
-    A_m = A.copy()
-    A_m[:, :, 3] = A[:, :, 3] / u + c_scan - np.einsum("nij,j->ni", A[:, :, :3], cb)
     # scan→fit distance on a fixed subsample of scan points, shared with the per-part check
     sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), SAMPLE_POINTS)).astype(np.int64)
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
@@ -482,17 +615,20 @@ def iter_fit(
     report.quality = assess_fit(
         index,
         X,
-        template=tpl,
+        template=ops.template,
         scan_to_fit=d,
         sample_ids=sample,
-        reference=V_base if shape_prior else None,
+        reference=body.V if shape_prior else None,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
-    report.no_data_fraction = float(np.mean(~compatible_full))
+    report.no_data_fraction = float(np.mean(~(final.weights > 0)))
     report.template_region_fraction = float(np.mean(~ops.full.data_mask))
     report.seconds = time.perf_counter() - t_start
-    yield FitResult(vertices=X, faces=F_full, affines=A_m, data_weight=weights_full, report=report)
+    return FitResult(
+        vertices=X, faces=F_full, affines=frame.affines_to_world(A), data_weight=weights_full,
+        report=report,
+    )  # fmt: skip
 
 
 RETRIES = (
@@ -528,9 +664,22 @@ def fit(
     *,
     callback: Callable[[Progress], bool | None] | None = None,
     retry: bool = True,
-    **options: Any,
+    schedule: Schedule | None = None,
+    template: Template | None = None,
+    max_distance: float = 0.10,
+    max_angle_deg: float = 90.0,
+    confidence_full_at: float = 0.2,
+    marker_far_distance: float = 0.10,
+    n_low: int = 2500,
+    unit_scale: float = 1000.0,
+    shape_prior: bool = True,
+    marker_outlier_distance: float = 0.05,
+    initial_similarity: Similarity | None = None,
+    prior_options: dict[str, Any] | None = None,
+    marker_trust: float | None = None,
+    part_weights: dict[str, float] | None = None,
 ) -> FitResult:
-    """Fit the template to ``scan`` guided by ``markers``; see :func:`iter_fit` for options.
+    """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
     ``callback(progress)`` is called after every correspondence update; returning ``False``
     cancels the fit (:class:`FitCancelled`).
@@ -541,9 +690,17 @@ def fit(
     best result is kept (verdict, then parts not good, then scan→fit p95). The report's notes
     list the attempts; a part still lost stays in the verdict with its name.
     """
+    options: dict[str, Any] = {
+        "schedule": schedule, "template": template, "max_distance": max_distance,
+        "max_angle_deg": max_angle_deg, "confidence_full_at": confidence_full_at,
+        "marker_far_distance": marker_far_distance, "n_low": n_low, "unit_scale": unit_scale,
+        "shape_prior": shape_prior, "marker_outlier_distance": marker_outlier_distance,
+        "initial_similarity": initial_similarity, "prior_options": prior_options,
+        "marker_trust": marker_trust, "part_weights": part_weights,
+    }  # fmt: skip
     res = _run(scan, markers, callback, options)
     q = res.report.quality
-    if not retry or q is None or q.quality == "good" or not options.get("shape_prior", True):
+    if not retry or q is None or q.quality == "good" or not shape_prior:
         return res
     attempts = [f"first fit: {q.quality}"]
     best = res
