@@ -14,6 +14,15 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from core.registration.energy import (
+    data_energy,
+    data_term,
+    deformed,
+    marker_energy,
+    marker_term,
+    smoothness_energy,
+    smoothness_term,
+)
 from core.registration.operators import ResolutionLevel, homogeneous
 
 REGULARIZATION = 1e-8  # ε‖T − T₀‖², relative to the mean diagonal: keeps tiny cases well-posed
@@ -84,12 +93,12 @@ class AffineSolver:
 
     def _matrix(self, t: SystemTerms, w: np.ndarray) -> tuple[sp.csc_matrix, float]:
         lv = self.level
-        M = t.beta * lv.smooth_kron
+        M = t.beta * smoothness_term(lv)
         idx = np.flatnonzero(w > 0)
         if t.alpha > 0 and len(idx):
-            M = M + t.alpha * lv.gram(idx, w[idx])
+            M = M + t.alpha * lv.gram(idx, w[idx])  # M_d of data_term
         if t.gamma > 0 and len(t.marker_idx):
-            M = M + t.gamma * lv.gram(t.marker_idx, t.marker_weights)
+            M = M + t.gamma * lv.gram(t.marker_idx, t.marker_weights)  # M_m of marker_term
         eps = REGULARIZATION * max(float(M.diagonal().mean()), 1e-12)
         return (M + eps * sp.identity(4 * lv.n)).tocsc(), eps
 
@@ -123,25 +132,19 @@ class AffineSolver:
         b = self._eps * x_reg
         idx = np.flatnonzero(w > 0)
         if t.alpha > 0 and len(idx):
-            b = b + t.alpha * lv.rhs(idx, w[idx], targets[idx])
+            b = b + t.alpha * data_term(lv, idx, w[idx], targets[idx])[1]
         if t.gamma > 0 and len(t.marker_idx):
-            b = b + t.gamma * lv.rhs(t.marker_idx, t.marker_weights, t.marker_targets)
+            b = b + t.gamma * marker_term(lv, t.marker_idx, t.marker_weights, t.marker_targets)[1]
         return self._lu.solve(b), SolveStats(factorized=factorized, changed_fraction=changed)
 
 
 def energies(level: ResolutionLevel, t: SystemTerms, x: np.ndarray) -> dict[str, float]:
-    """Unweighted E_d, E_s, E_m and the weighted total for affines x (4n, 3), solver units."""
-    A = x.reshape(level.n, 4, 3)
-    h = np.hstack([level.V, np.ones((level.n, 1))])
-    X = np.einsum("nk,nkc->nc", h, A)
-    e_d = float(np.sum(t.data_w * np.sum((X[t.data_idx] - t.data_targets) ** 2, axis=1)))
-    diff = A[level.edges[:, 0]] - A[level.edges[:, 1]]
-    e_s = float(np.sum(diff**2))
-    e_m = (
-        float(np.sum(t.marker_weights * np.sum((X[t.marker_idx] - t.marker_targets) ** 2, axis=1)))
-        if len(t.marker_idx)
-        else 0.0
-    )
+    """Unweighted E_d, E_s, E_m and the weighted total for affines x (4n, 3), solver units
+    (``core.registration.energy``)."""
+    X = deformed(level, x)
+    e_d = data_energy(X, t.data_idx, t.data_w, t.data_targets)
+    e_s = smoothness_energy(x.reshape(level.n, 4, 3), level.edges)
+    e_m = marker_energy(X, t.marker_idx, t.marker_weights, t.marker_targets)
     return {
         "data": e_d,
         "smoothness": e_s,
