@@ -36,7 +36,7 @@ from core.registration.operators import (
 )
 from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit, part_labels
 from core.registration.schedule import Schedule, Stage
-from core.registration.shape_prior import fit_body_prior
+from core.registration.shape_prior import PriorOptions, fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
@@ -203,7 +203,7 @@ def iter_fit(
     shape_prior: bool = True,
     marker_outlier_distance: float = 0.05,
     initial_similarity: Similarity | None = None,
-    prior_options: dict[str, Any] | None = None,
+    prior_options: PriorOptions | dict[str, Any] | None = None,
     marker_trust: float | None = None,
     part_weights: dict[str, float] | None = None,
 ) -> Iterator[Progress | FitResult]:
@@ -228,7 +228,7 @@ def iter_fit(
         the paper's method from the plain template.
     initial_similarity : template → scan alignment to start from when ``markers`` is empty
         (markerless fitting, ``core.matching``).
-    prior_options : extra keyword options of ``fit_body_prior`` (e.g. ``k_schedule``).
+    prior_options : tuning of ``fit_body_prior`` (:class:`PriorOptions`, or a dict of its fields).
     marker_trust : minimum robust weight (0..1) of every marker in the body prior (default: half
         for markers that agree with their neighbours, 0 for the others); a retry sets 1.
     part_weights : quality part name (``core.registration.quality.PARTS``) -> multiplier of
@@ -361,7 +361,7 @@ def initial_body(
     shape_prior: bool,
     max_distance: float,
     marker_outlier_distance: float,
-    prior_options: dict[str, Any] | None,
+    prior_options: PriorOptions | dict[str, Any] | None,
     marker_trust: float | None,
     part_weights: dict[str, float] | None,
 ) -> InitialBody:
@@ -393,7 +393,7 @@ def initial_body(
         max_distance=max_distance,
         marker_floor=floor,
         vertex_weight=vw,
-        **(prior_options or {}),
+        **PriorOptions.of(prior_options).kwargs(),
     )
     report.scale = prior.similarity.s
     report.marker_residuals_m = {
@@ -675,7 +675,7 @@ def fit(
     shape_prior: bool = True,
     marker_outlier_distance: float = 0.05,
     initial_similarity: Similarity | None = None,
-    prior_options: dict[str, Any] | None = None,
+    prior_options: PriorOptions | dict[str, Any] | None = None,
     marker_trust: float | None = None,
     part_weights: dict[str, float] | None = None,
 ) -> FitResult:
@@ -713,9 +713,8 @@ def fit(
         if "part_weight" in opt:
             weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            po = dict(o.get("prior_options") or {})
-            po["bidirectional"] = opt["bidirectional"]
-            o["prior_options"] = po
+            po = PriorOptions.of(o.get("prior_options"))
+            o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
         else:
             o.update(opt)
         r = _run(scan, markers, callback, o)

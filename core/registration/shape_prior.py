@@ -107,6 +107,44 @@ def load_shape_basis(k: int = 60) -> ShapeBasis:
     return compute_shape_basis(k)
 
 
+@dataclass(frozen=True)
+class PriorOptions:
+    """Tuning of :func:`fit_body_prior` (its keyword arguments of the same names and defaults).
+
+    ``PriorOptions.of(d)`` accepts a dict too (unknown names: ``TypeError`` naming them).
+    """
+
+    iterations: int = 12
+    shape_prior_weight: float = 1.0
+    pose_prior_weight: float = 1e-3
+    marker_weight: float = 4.0
+    marker_scale: float = 0.03
+    marker_scale_start: float = 0.3
+    subsample: int = 3
+    k_schedule: tuple[int, ...] | None = None
+    bidirectional: bool = False
+    freeze_pose: int = 0
+    scan_sample: int = 4000
+
+    @classmethod
+    def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        unknown = sorted(set(value) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise TypeError(f"unknown body-prior options: {', '.join(unknown)}")
+        d = dict(value)
+        if d.get("k_schedule") is not None:
+            d["k_schedule"] = tuple(d["k_schedule"])
+        return cls(**d)
+
+    def kwargs(self) -> dict:
+        """The options as keyword arguments of :func:`fit_body_prior`."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
 @dataclass
 class PriorFit:
     """Result of :func:`fit_body_prior`: the posed, personalised template in the scan frame.

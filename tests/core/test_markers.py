@@ -127,3 +127,18 @@ def test_head_flexed_15_cm_keeps_head_markers_and_head(head_case):
         q.quality != "good" and any(r.startswith("head") for r in q.reasons)
     )
     assert q.parts["head"].scan_to_fit_p95_m < 0.006, q.reasons
+
+
+def test_prior_options_mirror_fit_body_prior_defaults():
+    import inspect
+
+    from core.registration.shape_prior import PriorOptions, fit_body_prior
+
+    sig = inspect.signature(fit_body_prior).parameters
+    for name, value in PriorOptions().kwargs().items():
+        assert sig[name].default == value, name
+    assert PriorOptions.of({"k_schedule": [5, 10]}).k_schedule == (5, 10)
+    with pytest.raises(TypeError, match="iteratons"):
+        PriorOptions.of({"iteratons": 3})
+    with pytest.raises(AttributeError):
+        PriorOptions().iterations = 3  # frozen
