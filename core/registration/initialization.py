@@ -12,23 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.errors import MarkerError
+from core.geometry import Similarity, umeyama
 
-
-@dataclass
-class Similarity:
-    """``x ↦ s R x + t``: scale s, rotation R (3, 3) with det +1, translation t (3,)."""
-
-    s: float
-    R: np.ndarray
-    t: np.ndarray
-
-    def apply(self, X: np.ndarray) -> np.ndarray:
-        """Transform points X (n, 3)."""
-        return self.s * X @ self.R.T + self.t
-
-    def affine(self) -> np.ndarray:
-        """The (3, 4) matrix ``[sR | t]``."""
-        return np.hstack([self.s * self.R, self.t[:, None]])
+__all__ = ["MarkerAlignment", "Similarity", "align_markers", "umeyama"]
 
 
 @dataclass
@@ -40,31 +26,6 @@ class MarkerAlignment:
     dropped: list[str]
     residuals: dict[str, float]  # metres, per used marker after alignment
     warnings: list[str] = field(default_factory=list)
-
-
-def umeyama(
-    src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None, *, scale: float | None = None
-) -> Similarity:
-    """Least-squares similarity mapping src (k, 3) onto dst (k, 3), optional weights (k,).
-
-    With ``scale`` given, the scale is held at that value (a rigid fit of the scaled source).
-    """
-    w = np.ones(len(src)) if w is None else np.asarray(w, dtype=np.float64)
-    w = w / w.sum()
-    mu_s = w @ src
-    mu_d = w @ dst
-    S = src - mu_s
-    D = dst - mu_d
-    C = (D * w[:, None]).T @ S
-    U, sig, Vt = np.linalg.svd(C)
-    E = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        E[2, 2] = -1.0
-    R = U @ E @ Vt
-    var_s = float(w @ np.sum(S**2, axis=1))
-    s = float(np.trace(np.diag(sig) @ E) / max(var_s, 1e-30)) if scale is None else float(scale)
-    t = mu_d - s * R @ mu_s
-    return Similarity(s=s, R=R, t=t)
 
 
 def align_markers(

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.geometry import umeyama
 from core.template import load_template
 
 
@@ -179,14 +180,8 @@ def rigid_align(V: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     -------
     R : (3, 3) rotation, t : (3,) translation (metres): ``V @ R.T + t`` ≈ ``ref``.
     """
-    V = np.asarray(V, dtype=np.float64)
-    ref = np.asarray(ref, dtype=np.float64)
-    cv, cr = V.mean(0), ref.mean(0)
-    H = (V - cv).T @ (ref - cr)
-    U, _, Wt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Wt.T @ U.T))])
-    R = Wt.T @ D @ U.T
-    return R, cr - cv @ R.T
+    sim = umeyama(np.asarray(V, dtype=np.float64), np.asarray(ref, dtype=np.float64), scale=1.0)
+    return sim.R, sim.t
 
 
 def to_model_frame(

@@ -19,6 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from core.geometry import umeyama
 from core.io.writers import GlbSkin, write_glb
 from core.rig import Rig, axis_angle, joint_positions, load_rig, pose_body
 from core.template import load_template
@@ -82,15 +83,9 @@ def posture(name: str) -> dict[str, np.ndarray]:
 
 
 def _similarity(P: np.ndarray, Q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``Q ~ s R P + t`` (Umeyama); P, Q (k, 3)."""
-    mp, mq = P.mean(0), Q.mean(0)
-    X, Y = P - mp, Q - mq
-    U, S, Vt = np.linalg.svd(Y.T @ X)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.diag([1.0, 1.0, d])
-    R = U @ D @ Vt
-    s = float((S * np.diag(D)).sum() / max((X * X).sum(), 1e-30))
-    return s, R, mq - s * R @ mp
+    """Least-squares similarity ``Q ~ s R P + t`` (:func:`core.geometry.umeyama`); P, Q (k, 3)."""
+    sim = umeyama(P, Q)
+    return sim.s, sim.R, sim.t
 
 
 def body_joints(
