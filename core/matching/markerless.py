@@ -9,9 +9,12 @@ scans 4.0–6.3 mm.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from core.errors import FitError
 from core.matching.body_check import check_body_shape
@@ -89,31 +92,185 @@ def candidate_alignments(scan: Scan, *, upside_down: bool = True) -> list[Simila
     return out
 
 
+#: metres; floor points: in the bottom band, farther than FLOOR_REACH from the feet above it.
+FLOOR_BAND, FLOOR_REACH = 0.02, 0.10
+#: metres; points of the subsample farther than this from the body's cluster are stray blobs.
+BLOB_GAP = 0.06
+
+
+def body_points(scan: Scan, n_sample: int = 6000) -> tuple[np.ndarray, dict[str, int]]:
+    """Which scan points belong to the body: (n,) bool and counts of what was left out.
+
+    - **floor**: points in the bottom :data:`FLOOR_BAND` more than :data:`FLOOR_REACH`
+      (horizontally and up) from any point just above the band (the feet): a floor plate
+      beyond the feet, floor points, a ring of floor around the subject;
+    - **blobs**: points whose nearest point of the largest cluster (points linked within
+      :data:`BLOB_GAP` on a subsample of ``n_sample``) is farther than that: stray objects.
+    """
+    V = np.asarray(scan.V)
+    n = len(V)
+    keep = np.ones(n, bool)
+    y = V[:, 1]
+    lo = float(np.percentile(y, 0.05))
+    band = y < lo + FLOOR_BAND
+    above = (y >= lo + FLOOR_BAND) & (y < lo + FLOOR_BAND + 0.06)
+    n_floor = 0
+    if band.any() and above.sum() >= 10:
+        d, _ = cKDTree(V[above]).query(V[band], k=1, distance_upper_bound=FLOOR_REACH + 0.01)
+        floor = np.flatnonzero(band)[d > FLOOR_REACH]
+        keep[floor] = False
+        n_floor = len(floor)
+    idx = np.flatnonzero(keep)
+    sub = idx[np.linspace(0, len(idx) - 1, min(n_sample, len(idx))).astype(np.int64)]
+    tree = cKDTree(V[sub])
+    pairs = tree.query_pairs(BLOB_GAP, output_type="ndarray")
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    m = len(sub)
+    G = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    _, lab = csgraph.connected_components(G, directed=False)
+    main = sub[lab == np.argmax(np.bincount(lab))]
+    d, _ = cKDTree(V[main]).query(V[idx], k=1, distance_upper_bound=BLOB_GAP)
+    blobs = idx[~np.isfinite(d)]
+    keep[blobs] = False
+    return keep, {"floor": n_floor, "blobs": len(blobs)}
+
+
+def body_only(scan: Scan) -> tuple[Scan, str | None]:
+    """The scan without floor points and stray blobs (:func:`body_points`), and a note (None
+    when nothing was left out)."""
+    keep, what = body_points(scan)
+    if keep.all():
+        return scan, None
+    F = scan.F
+    if F is not None:
+        F = F[keep[F].all(axis=1)]
+        F = (np.cumsum(keep) - 1)[F]
+    trimmed = Scan(
+        V=scan.V[keep], F=F, normals=scan.normals[keep], confidence=scan.confidence[keep],
+        boundary=scan.boundary[keep], frame=scan.frame, notes=list(scan.notes),
+    )  # fmt: skip
+    parts = [f"{v:,} {k} points" for k, v in what.items() if v]
+    return trimmed, "left out as not the body: " + ", ".join(parts)
+
+
+#: Arm abductions (degrees from the body's side) the articulated search starts from: scanning
+#: protocols put the arms anywhere from touching the torso to 60° out.
+ARM_HYPOTHESES = (10.0, 30.0, 50.0)
+#: Scale (metres) of the Geman–McClure weights of the search's two-way score.
+SCORE_SIGMA = 0.02
+
+
+@dataclass
+class Start:
+    """A starting point for the body prior: similarity, bone rotations, two-way score."""
+
+    similarity: Similarity
+    pose: dict[str, np.ndarray]
+    coefficients: np.ndarray
+    score: float
+    coverage: float
+    label: str
+
+
+def scan_sample(scan: Scan, n: int = 3000) -> np.ndarray:
+    """Indices (≤ n) of scan points for the search's scan→body terms: an even stride over the
+    points, leaving out isolated ones (low confidence: stray blobs)."""
+    ok = np.flatnonzero(np.asarray(scan.confidence) > 0.25)
+    if len(ok) < 100:
+        ok = np.arange(len(scan.V))
+    return ok[np.linspace(0, len(ok) - 1, min(n, len(ok))).astype(np.int64)]
+
+
+def two_way_score(
+    index: ScanIndex, X: np.ndarray, body_ids: np.ndarray, scan_ids: np.ndarray
+) -> float:
+    """Robust two-way mismatch of a body ``X`` (n, 3) and the scan, in [0, 2], lower is better.
+
+    Mean Geman–McClure ρ(d) = d² / (d² + σ²) (σ = :data:`SCORE_SIGMA`) of the distances from the
+    body vertices ``body_ids`` to the nearest scan point, plus that from the scan points
+    ``scan_ids`` to the nearest body vertex. Unsigned: no normals (they may point inward).
+    Hair, a floor plate or a stray blob add the same to every hypothesis; a body facing the
+    wrong way (toes behind the heels) or with its arms where the scan has none pays on both.
+    """
+    d_b, _ = index.tree.query(X[body_ids], k=1, workers=-1)
+    d_s, _ = cKDTree(X[body_ids]).query(index.points[scan_ids], k=1, workers=-1)
+    s2 = SCORE_SIGMA**2
+    return float(np.mean(d_b**2 / (d_b**2 + s2)) + np.mean(d_s**2 / (d_s**2 + s2)))
+
+
+def arm_pose(abduction_deg: float) -> dict[str, np.ndarray]:
+    """Local rotations of both upper arms that put them ``abduction_deg`` from the body's side
+    (the template's own abduction is measured from its joints)."""
+    from core.rig import axis_angle
+
+    rest = _template_arm_abduction()
+    z = np.array([0.0, 0.0, 1.0])
+    d = np.radians(abduction_deg - rest)
+    return {"upperarm01.L": axis_angle(z, d), "upperarm01.R": axis_angle(z, -d)}
+
+
+@cache
+def _template_arm_abduction() -> float:
+    """Degrees between the template's left upper arm (shoulder → elbow joint) and −Y."""
+    from core.rig import joint_positions, load_rig
+
+    rig = load_rig()
+    J = joint_positions(load_template().V, rig=rig)
+    d = J[rig.index("lowerarm01.L")] - J[rig.index("upperarm01.L")]
+    return float(np.degrees(np.arctan2(d[0], -d[1])))
+
+
 def choose_alignment(
     scan: Scan, index: ScanIndex | None = None, *, keep: int = 2
-) -> tuple[Similarity, list[dict[str, Any]]]:
-    """Pick the start: a short rigid two-way ICP of the template from each candidate (shape and
-    pose frozen), the ``keep`` best by coverage continued; returns the best and all scores."""
+) -> tuple[Start, list[dict[str, Any]]]:
+    """Pick the body prior's start in two rounds, each scored by :func:`two_way_score`:
+
+    1. rigid: a short two-way ICP of the template (shape and pose frozen, normals' sign not
+       trusted) from each facing / up candidate (:func:`candidate_alignments`);
+    2. articulated: from the ``keep`` best, each arm hypothesis (:data:`ARM_HYPOTHESES`) with
+       bone rotations, similarity and the first shape components free.
+
+    Returns the best start and every trial's score.
+    """
     tpl = load_template()
     ops = template_operators()
     index = index or ScanIndex(scan)
     F = np.asarray(tpl.F, dtype=np.int64)
     empty_i, empty_p = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    body_ids = np.flatnonzero(ops.full.data_mask)[::6]
+    scan_ids = scan_sample(scan)
 
-    def rigid(sim: Similarity, iterations: int) -> Any:
+    def run(sim: Similarity, pose: dict | None, iterations: int, articulated: bool) -> Any:
         return fit_body_prior(
             index, tpl.V, F, empty_i, empty_p, sim, data_mask=ops.full.data_mask,
-            iterations=iterations, k_schedule=(0,), freeze_pose=iterations + 1,
-            bidirectional=True, subsample=6, scan_sample=3000,
+            iterations=iterations, k_schedule=(0, 0, 6) if articulated else (0,),
+            freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
+            scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
         )  # fmt: skip
 
-    trials = [rigid(sim, 3) for sim in candidate_alignments(scan)]
-    order = np.argsort([-t.coverage for t in trials])[:keep]
-    finals = [rigid(trials[i].similarity, 6) for i in order]
-    best = max(finals, key=lambda t: t.coverage)
-    scores = [{"coverage": t.coverage, "cost_m": t.data_cost_m} for t in trials]
-    scores += [{"coverage": t.coverage, "cost_m": t.data_cost_m, "refined": True} for t in finals]
-    return best.similarity, scores
+    scores: list[dict[str, Any]] = []
+    rigid = []
+    for i, sim in enumerate(candidate_alignments(scan)):
+        t = run(sim, None, 3, False)
+        sc = two_way_score(index, t.X, body_ids, scan_ids)
+        rigid.append((sc, i, t))
+        scores.append({"stage": "rigid", "candidate": i, "score": sc, "coverage": t.coverage})
+    rigid.sort(key=lambda r: r[0])
+    best: Start | None = None
+    for _, i, t in rigid[:keep]:
+        for abd in ARM_HYPOTHESES:
+            pose = arm_pose(abd)
+            a = run(t.similarity, pose, 6, True)
+            sc = two_way_score(index, a.X, body_ids, scan_ids)
+            label = f"candidate {i}, arms {abd:.0f}°"
+            scores.append({"stage": "articulated", "candidate": i, "arms_deg": abd,
+                           "score": sc, "coverage": a.coverage})  # fmt: skip
+            if best is None or sc < best.score:
+                best = Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label)
+    assert best is not None
+    return best, scores
 
 
 @single_blas_thread
@@ -155,9 +312,10 @@ def fit_markerless(
     """
     frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
     check_body_shape(scan.V, scan.F, frame=frame)
+    scan, trimmed = body_only(scan)
     index = ScanIndex(scan)
-    sim, scores = choose_alignment(scan, index)
-    best_cov = max(s["coverage"] for s in scores)
+    start, scores = choose_alignment(scan, index)
+    best_cov = start.coverage
     low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     if soft_marker_rounds < 0:
         raise ValueError(f"soft_marker_rounds must be ≥ 0, got {soft_marker_rounds}")
@@ -168,10 +326,13 @@ def fit_markerless(
         "iterations": 16,
         "bidirectional": True,
         "freeze_pose": 3,
+        "initial_pose": start.pose,
+        "initial_coefficients": start.coefficients,
     }
     prior_options.update(options.pop("prior_options", {}) or {})
     res = fit(
-        scan, {}, initial_similarity=sim, schedule=sched if rounds == 0 else Schedule(()),
+        scan, {}, initial_similarity=start.similarity,
+        schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
         callback=callback if rounds == 0 else None, prior_options=prior_options, **options,
     )  # fmt: skip
     notes = list(res.report.notes)
@@ -179,7 +340,7 @@ def fit_markerless(
         last = r == rounds - 1
         res = fit(
             scan, predicted_landmarks(res.vertices), schedule=sched if last else Schedule(()),
-            callback=callback if last else None, **options,
+            callback=callback if last else None, retry=last, **options,
         )  # fmt: skip
     if rounds:
         rep = res.report
@@ -193,9 +354,11 @@ def fit_markerless(
             f"the previous round as soft markers ({n_warn} left out as far from the body)"
         )
         rep.markers_used, rep.markers_dropped, rep.marker_residuals_m = [], [], {}
+    if trimmed:
+        res.report.notes.append(trimmed)
     res.report.notes.append(
-        f"markerless: best of {len(scores)} starting alignments "
-        f"({best_cov * 100:.0f} % of the template within 1.5 cm)"
+        f"markerless: best of {len(scores)} starts ({start.label}; two-way score "
+        f"{start.score:.3f}, {best_cov * 100:.0f} % of the template within 1.5 cm)"
     )
     if low_coverage:
         res.report.warnings.append(

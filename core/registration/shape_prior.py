@@ -201,6 +201,7 @@ def _scan_to_template(
     cand: np.ndarray,
     max_distance: float,
     n_sample: int,
+    min_cos: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample."""
     pts = index.points
@@ -211,7 +212,7 @@ def _scan_to_template(
     valid = np.isfinite(d)
     jj = np.where(valid, j, 0)
     dots = np.einsum("skc,sc->sk", N[cand][jj], index.normals[sel])
-    ok = valid & (dots > 0.5)
+    ok = valid & (dots > min_cos)
     has = ok.any(axis=1)
     first = np.argmax(ok, axis=1)
     v = cand[jj[np.arange(len(sel)), first]][has]
@@ -310,6 +311,9 @@ def fit_body_prior(
     bidirectional: bool = False,
     freeze_pose: int = 0,
     scan_sample: int = 4000,
+    initial_pose: dict[str, np.ndarray] | None = None,
+    initial_coefficients: np.ndarray | None = None,
+    max_angle_deg: float = 60.0,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -337,6 +341,12 @@ def fit_body_prior(
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
         vertex (without markers, one-way pairs let the body shrink or slide off the scan).
     freeze_pose : iterations before the bone rotations may move (coarse alignment first).
+    initial_pose : bone name (of :data:`POSE_BONES`) -> (3, 3) local rotation to start from
+        (a markerless search's arm-pose hypothesis); others start at the identity.
+    initial_coefficients : (k,) shape coefficients to start from (default 0).
+    max_angle_deg : template and scan normals further apart are not paired; above 90° the
+        sign of the scan's normals is not trusted (180°: any normal, for a coarse search on
+        scans whose orientation may be wrong).
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -352,14 +362,16 @@ def fit_body_prior(
     if floor.shape != (len(marker_vid),):
         raise ValueError(f"marker_floor must have shape ({len(marker_vid)},), got {floor.shape}")
     mw = np.full(len(marker_vid), marker_weight)
-    c = np.zeros(k)
+    c = np.zeros(k) if initial_coefficients is None else np.array(initial_coefficients, float)
     local = np.broadcast_to(np.eye(3), (B, 3, 3)).copy()
+    for name, Rb in (initial_pose or {}).items():
+        local[POSE_BONES.index(name)] = Rb
     rows = np.zeros(0, dtype=np.int64)
     P = np.zeros((0, 3))
     w = np.zeros(0)
     damping = 1e-3
     rms_d = float("nan")
-    Xp, aux = art.pose(V0, local)
+    Xp, aux = art.pose(V0 + U @ c, local)
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -368,7 +380,7 @@ def fit_body_prior(
             N = vertex_normals(X, F)
             cand = np.flatnonzero(mask & sub)
             corr = index.closest_compatible(
-                X[cand], N[cand], max_distance=md, max_angle_deg=60.0, project=False
+                X[cand], N[cand], max_distance=md, max_angle_deg=max_angle_deg, project=False
             )
             ok = corr.weights > 0
             rows = cand[ok]
@@ -376,7 +388,9 @@ def fit_body_prior(
             w = corr.weights[ok]
             Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
             if bidirectional:  # scan → template pairs too: the body must cover the scan
-                s_rows, s_P, s_w, s_N = _scan_to_template(index, X, N, cand, md, scan_sample)
+                s_rows, s_P, s_w, s_N = _scan_to_template(
+                    index, X, N, cand, md, scan_sample, np.cos(np.radians(max_angle_deg))
+                )
                 rows = np.r_[rows, s_rows]
                 P = np.vstack([P, s_P])
                 w = np.r_[w, s_w]
