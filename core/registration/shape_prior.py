@@ -125,6 +125,9 @@ class PriorOptions:
     bidirectional: bool = False
     freeze_pose: int = 0
     scan_sample: int = 4000
+    initial_pose: dict[str, np.ndarray] | None = None
+    initial_coefficients: np.ndarray | None = None
+    max_angle_deg: float = 60.0
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
