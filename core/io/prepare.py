@@ -330,17 +330,13 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
         ok = np.linalg.norm(N, axis=1) > 1e-12
         N = np.where(ok[:, None], N, vn)
         N = normalize(N)
-        if F is not None:  # per component: agree with the (repaired) outward winding
-            _, vlabel = csgraph.connected_components(
-                sparse.coo_matrix((np.ones(len(F) * 3), (np.repeat(F[:, 0], 3), F.ravel())),
-                                  shape=(n, n)), directed=False)  # fmt: skip
-            agree = np.bincount(vlabel, np.einsum("ij,ij->i", N, vn))
-            bad = agree < 0
+        if F is not None:  # per point: the sign of the (repaired) outward winding
+            bad = np.einsum("ij,ij->i", N, vn) < 0
             if bad.any():
-                N = np.where(bad[vlabel][:, None], -N, N)
+                N = np.where(bad[:, None], -N, N)
                 notes.append(
-                    f"normals from the file pointed inward in {int(bad.sum())} of {len(bad)} "
-                    "components; flipped those"
+                    f"normals from the file pointed inward at {int(bad.sum()):,} of {n:,} points "
+                    "(against the outward winding); flipped those"
                 )
         elif np.einsum("ij,ij->", N, _radial(V)) < 0:
             N = -N
