@@ -296,6 +296,11 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         f"{mark(rate, TARGETS['fit_rate'], True)}); refused "
         f"{sum(r['outcome'] == 'refused' for r in rows)}, exceptions "
         f"{sum(r['outcome'] == 'exception' for r in rows)}",
+        "quality verdicts of the fitted: "
+        + ", ".join(
+            f"{v} {sum(r.get('quality') == v for r in ok)}" for v in ("good", "suspect", "failed")
+        )
+        + f"; fitted and not 'failed': {sum(r.get('quality') != 'failed' for r in ok)}/{n}",
         f"scan->fit median, averaged over fitted cases: {_f(med, '{:.2f}')} mm "
         f"(target <= 2.0: {mark(med, TARGETS['median'])})",
         f"scan->fit p95, averaged: {_f(p95, '{:.2f}')} mm "
