@@ -26,6 +26,7 @@ from core.errors import (
     NotABodyError,
     UnitsError,
 )
+from service.schemas import UNION_TAGS
 
 log = logging.getLogger("bodyspace.service")
 
@@ -143,6 +144,19 @@ def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _loc(e: dict[str, Any]) -> list[Any]:
+    """An error's location without the tag of a discriminated union (``body.full.scan_id`` ->
+    ``body.scan_id``): clients name fields, not schema variants."""
+    loc = list(e.get("loc", ()))
+    return loc[:1] + loc[2:] if len(loc) > 2 and loc[1] in UNION_TAGS else loc
+
+
+def _field(loc: list[Any]) -> str | None:
+    """The field an error names: the last name in its location (list indices skipped)."""
+    names = [x for x in loc[1:] if isinstance(x, str) and not x.isdigit()]
+    return names[-1] if names else None
+
+
 _HTTP_CODES = {401: "invalid_api_key", 404: "not_found", 405: "method_not_allowed"}
 
 
@@ -161,25 +175,31 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
+        raw = exc.errors()[:10]
         errors = [  # bounded: no input echoed, at most 10 errors, keys clipped
             {
-                "loc": [clip(x) for x in e.get("loc", ())],
+                "loc": [clip(x) for x in _loc(e)],
                 "msg": clip(e.get("msg"), 200),
                 "type": e.get("type"),
             }
-            for e in exc.errors()[:10]
+            for e in raw
         ]
-        missing = [e for e in errors if e["type"] == "missing"]
-        if missing and len(missing) == len(errors):
-            fields = [e["loc"][-1] for e in missing]
-            msg = f"missing required field(s): {', '.join(fields)}"
-            return JSONResponse(error_body("missing_field", msg, {"errors": errors}), 422)
-        first = errors[0] if errors else {"loc": [], "msg": "invalid"}
-        msg = f"{'.'.join(first['loc'])}: {first['msg']}"
         details: dict[str, Any] = {"errors": errors}
-        if len(first["loc"]) > 1:  # the first problem's field, e.g. body.keep.0 -> keep
-            details["field"] = first["loc"][1]
-        expected = ((exc.errors()[0].get("ctx") or {}).get("expected")) if errors else None
+        fields = [f for e in errors if (f := _field(e["loc"])) is not None]
+        if fields:  # the first problem's field, e.g. body.keep.0 -> keep, options.refine -> refine
+            details["field"] = fields[0]
+        if errors and all(e["type"] == "missing" for e in errors):
+            msg = f"missing required field(s): {', '.join(e['loc'][-1] for e in errors)}"
+            return JSONResponse(error_body("missing_field", msg, details), 422)
+        first = errors[0] if errors else {"loc": [], "msg": "invalid", "type": None}
+        ctx = (raw[0].get("ctx") or {}) if raw else {}
+        if first["type"] == "union_tag_invalid":  # a discriminated union's tag, e.g. fit mode
+            details["field"] = str(raw[0].get("ctx", {}).get("discriminator", "")).strip("'")
+            details["accepted"] = re.findall(r"'([^']*)'", str(ctx.get("expected_tags", "")))
+            msg = f"{details['field']}: must be one of {', '.join(details['accepted'])}"
+            return JSONResponse(error_body("validation_error", msg, details), 422)
+        msg = f"{'.'.join(first['loc'])}: {first['msg']}"
+        expected = ctx.get("expected")
         if first.get("type") in ("literal_error", "enum") and isinstance(expected, str):
             details["accepted"] = re.findall(r"'([^']*)'", expected)
         return JSONResponse(error_body("validation_error", msg, details), 422)

@@ -28,6 +28,10 @@ from service.schemas import (
     FitCreate,
     FitOut,
     FitPage,
+    FullFit,
+    MarkerlessFit,
+    MarkersOnlyFit,
+    MeasurementsFit,
     ScanOut,
     ScanPage,
     Timings,
@@ -342,28 +346,18 @@ def create_fit(
     given units; a markerless scan: size and proportions of a standing body; measurements:
     known names, plausible values).
     """
-    scan = None
-    if body.scan_id is not None and body.mode != "measurements":
-        scan = _own(session, Scan, body.scan_id, tenant, "scan")
-    elif body.mode not in ("markers_only", "measurements"):
-        raise ApiError(
-            "missing_field",
-            f"scan_id is required for mode {body.mode!r} (only 'markers_only' and "
-            "'measurements' need no scan)",
-            field="scan_id",
-        )
-    options = _check_fit_options(body)
+    scan = None if body.scan_id is None else _own(session, Scan, body.scan_id, tenant, "scan")
+    options = body.options.model_dump(exclude_none=True)
     markers = None
-    if body.markers is not None and body.mode in ("full", "markers_only"):  # markerless ignores
+    if body.markers is not None and body.mode != "markerless":  # markerless ignores them
         markers = _read_inline_markers(body.markers)
-    if body.mode == "full":
-        if not (markers or scan.markers):
-            raise ApiError("markers_required")
-    elif body.mode == "markers_only":
+    if isinstance(body, FullFit) and not (markers or scan.markers):
+        raise ApiError("markers_required")
+    if isinstance(body, MarkersOnlyFit):
         options.update(_check_markers_only(scan, markers, body))
-    elif body.mode == "markerless":
+    elif isinstance(body, MarkerlessFit):
         _check_markerless_scan(scan, settings, store)
-    else:  # measurements
+    elif isinstance(body, MeasurementsFit):
         options = _check_measurements(body, options)
     _admit(session, tenant, settings)
     fit = Fit(
@@ -434,50 +428,8 @@ def _read_inline_markers(given: dict[str, list[float]]) -> dict[str, list[float]
     return {k: [float(x) for x in v] for k, v in pts.items()}
 
 
-def _check_fit_options(body: FitCreate) -> dict[str, Any]:
-    """The stored options of a request; options that contradict the mode are a 422."""
-    opts = body.options
-    if body.mode == "markerless" and (opts.schedule == "paper" or opts.shape_prior is False):
-        raise ApiError(
-            "validation_error",
-            "a markerless fit starts from the shape space (body prior): use schedule 'default' "
-            "or 'fast', without shape_prior=false",
-            field="options",
-        )
-    if opts.refine is not None and body.mode != "markerless":
-        raise ApiError(
-            "validation_error", "options.refine applies to mode 'markerless' only", field="refine"
-        )
-    if opts.calibrate is not None and body.mode != "measurements":
-        raise ApiError(
-            "validation_error",
-            "options.calibrate applies to mode 'measurements' only",
-            field="calibrate",
-        )
-    for name in ("scan_id", "markers") if body.mode == "measurements" else ("sex", "measurements"):
-        if getattr(body, name) is not None:
-            raise ApiError(
-                "validation_error",
-                f"mode 'measurements' makes a body from sex and tape measurements alone: {name} "
-                "does not apply"
-                if body.mode == "measurements"
-                else f"{name} applies to mode 'measurements' only",
-                field=name,
-            )
-    if body.mode != "markers_only" or body.scan_id is not None:
-        for name in ("units", "up"):
-            if getattr(body, name) is not None:
-                raise ApiError(
-                    "validation_error",
-                    f"{name} describes markers given without a scan (mode 'markers_only'); "
-                    "otherwise markers are in the scan's units and axes, set at upload",
-                    field=name,
-                )
-    return opts.model_dump(exclude_none=True)
-
-
 def _check_markers_only(
-    scan: Scan | None, markers: dict[str, list[float]] | None, body: FitCreate
+    scan: Scan | None, markers: dict[str, list[float]] | None, body: MarkersOnlyFit
 ) -> dict[str, Any]:
     """Validate a markers-only request; returns the options to store (the markers' frame)."""
     import numpy as np
@@ -534,22 +486,11 @@ def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> 
     )  # fmt: skip
 
 
-def _check_measurements(body: FitCreate, options: dict[str, Any]) -> dict[str, Any]:
+def _check_measurements(body: MeasurementsFit, options: dict[str, Any]) -> dict[str, Any]:
     """Validate a measurements request; returns the options to store (sex, measurements)."""
     from core.matching.from_measurements import check_measurements
     from core.shapespace import default_model
 
-    if body.sex is None:
-        raise ApiError(
-            "missing_field", "mode 'measurements' needs sex: 'female' or 'male'", field="sex"
-        )
-    if not body.measurements:
-        raise ApiError(
-            "missing_field",
-            "mode 'measurements' needs measurements: {ANSUR II name: value}, metres (weightkg "
-            "in kg), e.g. {'stature': 1.65, 'weightkg': 62}",
-            field="measurements",
-        )
     values = check_measurements(body.sex, body.measurements, model=default_model())
     out = {k: v for k, v in options.items() if k == "calibrate"}  # schedules concern scans
     return {**out, "sex": body.sex, "measurements": values}

@@ -5,11 +5,20 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationInfo,
+    field_validator,
+)
 
 FitState = Literal["queued", "running", "succeeded", "failed"]
 FitMode = Literal["full", "markerless", "markers_only", "measurements"]
 MarkerUnits = Literal["auto", "m", "cm", "mm"]
+Sex = Literal["female", "male"]
 MarkerUp = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 
 
@@ -38,7 +47,7 @@ class ScanOut(BaseModel):
     created_at: datetime
 
 
-class FitOptions(BaseModel):
+class ScanFitOptions(BaseModel):
     """Options of a fit (keyword options of ``core.registration.fit``)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -57,72 +66,134 @@ class FitOptions(BaseModel):
     max_distance_m: float | None = Field(
         None, gt=0, le=0.5, description="farthest compatible scan point, metres (default 0.10)"
     )
+
+
+class MarkerlessOptions(ScanFitOptions):
+    """Options of a markerless fit: it starts from the shape space (body prior), so no 'paper'
+    schedule and no ``shape_prior: false``."""
+
+    schedule: Literal["default", "fast"] = Field(  # type: ignore[assignment]
+        "default",
+        description="'default': body prior + full-resolution refinement (most accurate); "
+        "'fast': a short preview ('paper' starts from the bare template: not markerless)",
+    )
+    shape_prior: Literal[True] | None = Field(  # type: ignore[assignment]
+        None, description="always on for a markerless fit (the start is the shape space)"
+    )
     refine: bool | None = Field(
         None,
-        description="mode 'markerless' only: follow the shape-space fit with the per-vertex "
-        "affine refinement of the schedule (default true); false returns the shape-space body",
+        description="follow the shape-space fit with the per-vertex affine refinement of the "
+        "schedule (default true); false returns the shape-space body",
     )
+
+
+class MeasurementsOptions(ScanFitOptions):
+    """Options of a measurements fit (``schedule``, ``shape_prior`` and ``max_distance_m``
+    concern scans: accepted and ignored)."""
+
     calibrate: bool | None = Field(
         None,
-        description="mode 'measurements' only: the values are tape measurements as ANSUR II "
-        "takes them (default true; the body's own measurements plus the model's calibration "
-        "offsets are matched); false: they follow bodyspace's measurement definitions (e.g. "
-        "the measurements of a synthesised body) and are matched as they are",
+        description="the values are tape measurements as ANSUR II takes them (default true; "
+        "the body's own measurements plus the model's calibration offsets are matched); "
+        "false: they follow bodyspace's measurement definitions (e.g. the measurements of a "
+        "synthesised body) and are matched as they are",
     )
 
 
-class FitCreate(BaseModel):
-    """A fit request: a mode, a scan id, optional markers (else the scan's) and options.
+Markers = dict[str, list[float]]
+_MARKERS_DOC = "landmark name -> [x, y, z] in the scan file's units and axes"
 
-    - ``full`` (default): scan + markers (given here or uploaded with the scan).
-    - ``markerless``: scan only; markers are ignored.
-    - ``markers_only``: the most likely body from markers alone. Without ``scan_id`` the markers
-      must be given here, in metres +Y up unless ``units``/``up`` say otherwise; with
-      ``scan_id`` the markers (given here, else the scan's uploaded marker file) are in the scan
-      file's units and axes, and the scan's surface is not used.
-    - ``measurements``: the most likely body from tape measurements (``sex`` and
-      ``measurements``; no scan, no markers).
-    """
 
+class _FitBase(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    mode: FitMode = Field(
-        "full",
-        description="'full': scan + markers; 'markerless': scan without markers; "
-        "'markers_only': markers without a scan (scan_id optional); 'measurements': "
-        "tape measurements (sex + measurements, no scan)",
-    )
-    scan_id: str | None = Field(
+
+class FullFit(_FitBase):
+    """``full`` (the default mode): scan + markers, given here or uploaded with the scan."""
+
+    mode: Literal["full"] = Field("full", description="scan + markers (the default)")
+    scan_id: str = Field(description="the scan to fit")
+    markers: Markers | None = Field(None, description=_MARKERS_DOC + " (else the scan's)")
+    options: ScanFitOptions = Field(default_factory=ScanFitOptions)
+
+
+class MarkerlessFit(_FitBase):
+    """``markerless``: a scan without markers (markers are ignored)."""
+
+    mode: Literal["markerless"]
+    scan_id: str = Field(description="the scan to fit")
+    markers: Markers | None = Field(None, description="ignored in this mode")
+    options: MarkerlessOptions = Field(default_factory=MarkerlessOptions)
+
+
+class MarkersOnlyFit(_FitBase):
+    """``markers_only``: the most likely body from markers alone. Without ``scan_id`` the
+    markers must be given here, in metres +Y up unless ``units``/``up`` say otherwise; with
+    ``scan_id`` the markers (given here, else the scan's uploaded marker file) are in the scan
+    file's units and axes, and the scan's surface is not used."""
+
+    mode: Literal["markers_only"]
+    scan_id: str | None = Field(None, description="optional: the scan whose frame (and "
+                                "uploaded markers, unless given here) to use")  # fmt: skip
+    markers: Markers | None = Field(
         None,
-        description="the scan to fit; required for 'full' and 'markerless', optional for "
-        "'markers_only', refused for 'measurements'",
-    )
-    markers: dict[str, list[float]] | None = Field(
-        None,
-        description="landmark name -> [x, y, z] in the scan file's units and axes (mode "
-        "'markers_only' without a scan: metres, +Y up unless units/up are given)",
+        description=_MARKERS_DOC + " (without scan_id: metres, +Y up unless units/up are given)",
     )
     units: MarkerUnits | None = Field(
         None,
-        description="mode 'markers_only' without a scan: units of the markers (default 'm'; "
-        "'auto' detects them from the markers' height)",
+        description="without scan_id only: units of the markers (default 'm'; 'auto' detects "
+        "them from the markers' height)",
     )
     up: MarkerUp | None = Field(
         None,
-        description="mode 'markers_only' without a scan: the markers' up axis (default '+y'; "
-        "'auto' detects it from head and foot landmarks)",
+        description="without scan_id only: the markers' up axis (default '+y'; 'auto' detects "
+        "it from head and foot landmarks)",
     )
-    sex: Literal["female", "male"] | None = Field(
-        None, description="mode 'measurements' (required there): the body's sex"
-    )
-    measurements: dict[str, float] | None = Field(
-        None,
-        description="mode 'measurements' (required there): ANSUR II measurement name (as "
-        "listed by core.measure, e.g. 'stature', 'weightkg', 'waistcircumference') -> value "
-        "in metres (weightkg in kg)",
+    options: ScanFitOptions = Field(default_factory=ScanFitOptions)
+
+    @field_validator("units", "up")
+    @classmethod
+    def _frame_without_scan(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is not None and info.data.get("scan_id") is not None:
+            raise ValueError(
+                f"{info.field_name} describes markers given without a scan; with scan_id the "
+                "markers are in the scan's units and axes, set at upload"
+            )
+        return v
+
+
+class MeasurementsFit(_FitBase):
+    """``measurements``: the most likely body from tape measurements (no scan, no markers)."""
+
+    mode: Literal["measurements"]
+    sex: Sex = Field(description="the body's sex")
+    measurements: dict[str, float] = Field(
+        min_length=1,
+        description="ANSUR II measurement name (as listed by core.measure, e.g. 'stature', "
+        "'weightkg', 'waistcircumference') -> value in metres (weightkg in kg)",
         json_schema_extra={"examples": [{"stature": 1.65, "weightkg": 62.0}]},
     )
-    options: FitOptions = Field(default_factory=FitOptions)
+    scan_id: None = Field(None, description="does not apply (null only)")
+    markers: None = Field(None, description="does not apply (null only)")
+    options: MeasurementsOptions = Field(default_factory=MeasurementsOptions)
+
+
+def _fit_mode(v: Any) -> Any:
+    """The tag of a fit request: its ``mode`` (default ``full``)."""
+    return v.get("mode", "full") if isinstance(v, dict) else getattr(v, "mode", None)
+
+
+#: Tags of the discriminated unions (stripped from validation errors' locations).
+UNION_TAGS = frozenset(("full", "markerless", "markers_only", "measurements"))
+
+#: A fit request, one schema per ``mode`` (``full`` when absent).
+FitCreate = Annotated[
+    Annotated[FullFit, Tag("full")]
+    | Annotated[MarkerlessFit, Tag("markerless")]
+    | Annotated[MarkersOnlyFit, Tag("markers_only")]
+    | Annotated[MeasurementsFit, Tag("measurements")],
+    Discriminator(_fit_mode),
+]
 
 
 class Progress(BaseModel):
@@ -209,8 +280,6 @@ class Health(BaseModel):
 
 
 # ----------------------------------------------------------------------------- shape models
-
-Sex = Literal["female", "male"]
 
 
 class FeatureRange(BaseModel):

@@ -98,8 +98,8 @@ M = {"stature": 1.65, "weightkg": 60.0}
     [
         ({"mode": "measurements"}, "missing_field", "sex"),
         ({"mode": "measurements", "sex": "female"}, "missing_field", "measurements"),
-        ({"mode": "measurements", "sex": "female", "measurements": {}}, "missing_field",
-         "measurements"),
+        ({"mode": "measurements", "sex": "female", "measurements": {}}, "validation_error",
+         "measurements"),  # the schema's minProperties 1
         ({"mode": "measurements", "sex": "female", "measurements": {"height_m": 1.7}},
          "invalid_measurements", None),
         ({"mode": "measurements", "sex": "female", "measurements": {"stature": 1650}},
