@@ -10,6 +10,8 @@ from pydantic import (
     ConfigDict,
     Discriminator,
     Field,
+    StrictBool,
+    StrictFloat,
     Tag,
     ValidationInfo,
     field_validator,
@@ -58,13 +60,17 @@ class ScanFitOptions(BaseModel):
         "'fast': a short preview; 'paper': Allen et al. 2003's four-stage schedule from the "
         "bare template",
     )
-    shape_prior: bool | None = Field(
+    shape_prior: StrictBool | None = Field(
         None,
         description="override: personalise the template before the affine fit "
         "(default: on for 'default'/'fast', off for 'paper')",
     )
     max_distance_m: float | None = Field(
-        None, gt=0, le=0.5, description="farthest compatible scan point, metres (default 0.10)"
+        None,
+        gt=0,
+        le=0.5,
+        strict=True,
+        description="farthest compatible scan point, metres (default 0.10)",
     )
 
 
@@ -80,7 +86,7 @@ class MarkerlessOptions(ScanFitOptions):
     shape_prior: Literal[True] | None = Field(  # type: ignore[assignment]
         None, description="always on for a markerless fit (the start is the shape space)"
     )
-    refine: bool | None = Field(
+    refine: StrictBool | None = Field(
         None,
         description="follow the shape-space fit with the per-vertex affine refinement of the "
         "schedule (default true); false returns the shape-space body",
@@ -91,7 +97,7 @@ class MeasurementsOptions(ScanFitOptions):
     """Options of a measurements fit (``schedule``, ``shape_prior`` and ``max_distance_m``
     concern scans: accepted and ignored)."""
 
-    calibrate: bool | None = Field(
+    calibrate: StrictBool | None = Field(
         None,
         description="the values are tape measurements as ANSUR II takes them (default true; "
         "the body's own measurements plus the model's calibration offsets are matched); "
@@ -100,7 +106,7 @@ class MeasurementsOptions(ScanFitOptions):
     )
 
 
-Markers = dict[str, list[float]]
+Markers = dict[str, list[StrictFloat]]
 _MARKERS_DOC = "landmark name -> [x, y, z] in the scan file's units and axes"
 
 
@@ -167,7 +173,7 @@ class MeasurementsFit(_FitBase):
 
     mode: Literal["measurements"]
     sex: Sex = Field(description="the body's sex")
-    measurements: dict[str, float] = Field(
+    measurements: dict[str, StrictFloat] = Field(
         min_length=1,
         description="ANSUR II measurement name (as listed by core.measure, e.g. 'stature', "
         "'weightkg', 'waistcircumference') -> value in metres (weightkg in kg)",
