@@ -1,14 +1,16 @@
-"""Fast GLB encoding of many meshes that share one triangle list (bodies in template order).
+"""GLB (binary glTF 2.0) encoding: the one layout of bodyspace's GLB files.
 
-:func:`core.io.write_glb` handles any mesh and does all its work per call. A service that sends
-thousands of bodies with the same faces can precompute what does not change:
-:class:`FixedTopologyGlb` builds once the index buffer bytes, a sparse vertex <- face matrix that
-sums face normals into vertex normals, the buffer layout and the JSON chunk around the only
-per-body values (the POSITION ``min``/``max``). Its output is what ``write_glb(None, V, F)``
-writes for the same ``V`` and ``F`` -- the same JSON chunk, positions and indices byte for byte
--- except that the area-weighted vertex normals are summed in float32 from float64 edge vectors
-(they are stored as float32 anyway): within 1e-5 (0.0006°) of write_glb's float64 normals, unit
-length to float32 precision. About a fifth of write_glb's time per body.
+:class:`GlbLayout` lays out the JSON document and the binary chunk of a one-mesh GLB (buffer
+views, accessors, the file header): :func:`core.io.write_glb` builds one per call for any mesh
+(normals, colours, morph targets, skins); :class:`FixedTopologyGlb` builds one once for the many
+meshes that share one triangle list (bodies in template order) and keeps, besides it, the index
+buffer bytes, a sparse vertex <- face matrix that sums face normals into vertex normals and the
+JSON chunk around the only per-body values (the POSITION ``min``/``max``). Its output is what
+``write_glb(None, V, F)`` writes for the same ``V`` and ``F`` -- the same JSON chunk, positions
+and indices byte for byte -- except that the area-weighted vertex normals are summed in float32
+from float64 edge vectors (they are stored as float32 anyway): within 1e-5 (0.0006°) of
+write_glb's float64 normals, unit length to float32 precision. About a fifth of write_glb's time
+per body.
 """
 
 from __future__ import annotations
@@ -27,6 +29,92 @@ _MIN, _MAX = "@@POSITION_MIN@@", "@@POSITION_MAX@@"
 
 def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
     return b + fill * (-len(b) % 4)
+
+
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963  # buffer view targets
+
+
+class GlbLayout:
+    """The JSON document and binary-chunk layout of a GLB with one mesh and one primitive.
+
+    Data blocks are added in buffer order (:meth:`add`: each starts on a 4-byte boundary); the
+    caller writes each block's bytes at its offset in the buffer of :meth:`frame`.
+    """
+
+    def __init__(self) -> None:
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+        self.bin_len = 0  # bytes of the binary chunk's data (blocks padded to 4)
+
+    def add(self, nbytes: int, target: int, accessor: dict) -> tuple[int, int]:
+        """Reserve ``nbytes`` for ``accessor`` (its ``bufferView`` is set here) in a buffer
+        view with ``target`` (0: none). Returns (accessor index, byte offset in the chunk)."""
+        offset = self.bin_len
+        view = {"buffer": 0, "byteOffset": offset, "byteLength": int(nbytes)}
+        if target:
+            view["target"] = target
+        self.views.append(view)
+        accessor["bufferView"] = len(self.views) - 1
+        self.accessors.append(accessor)
+        self.bin_len += int(nbytes) + (-int(nbytes) % 4)
+        return len(self.accessors) - 1, offset
+
+    def document(
+        self,
+        mesh: dict,
+        nodes: list[dict] | None = None,
+        scene_nodes: list[int] | None = None,
+        skins: list[dict] | None = None,
+    ) -> dict:
+        """The glTF JSON document: ``mesh`` on node 0 (``nodes``: all nodes, default the mesh
+        node alone; ``scene_nodes``: the scene's roots, default ``[0]``)."""
+        gltf = {
+            "asset": {"version": "2.0", "generator": "bodyspace"},
+            "scene": 0,
+            "scenes": [{"nodes": [0] if scene_nodes is None else scene_nodes}],
+            "nodes": [{"mesh": 0, "name": "body"}] if nodes is None else nodes,
+            "meshes": [mesh],
+            "buffers": [{"byteLength": self.bin_len}],
+            "bufferViews": self.views,
+            "accessors": self.accessors,
+        }
+        if skins:
+            gltf["skins"] = skins
+        return gltf
+
+    def frame(self, js: bytes) -> tuple[bytearray, int]:
+        """A zeroed GLB buffer with its headers and the JSON chunk ``js`` (compact JSON, padded
+        here with spaces) written; returns it and the offset of the binary chunk's data."""
+        js = js + b" " * (-len(js) % 4)
+        o = 28 + len(js)  # 12 (file header) + 8 (JSON chunk header) + JSON + 8 (BIN header)
+        total = o + self.bin_len
+        buf = bytearray(total)
+        struct.pack_into("<IIIII", buf, 0, _GLTF_MAGIC, 2, total, len(js), _JSON)
+        buf[20 : 20 + len(js)] = js
+        struct.pack_into("<II", buf, o - 8, self.bin_len, _BIN)
+        return buf, o
+
+
+def triangle_indices(F: np.ndarray, n_vertices: int) -> tuple[np.ndarray, dict]:
+    """The index block of triangles ``F`` ((m, 3), m >= 1) of a mesh of ``n_vertices``: the
+    flat uint16 (uint32 from 65535 vertices) indices and their accessor (without view)."""
+    if n_vertices < 65535:
+        idx, ctype = np.ascontiguousarray(F, dtype=np.uint16).ravel(), 5123
+    else:
+        idx, ctype = np.ascontiguousarray(F, dtype=np.uint32).ravel(), 5125
+    accessor = {
+        "componentType": ctype,
+        "count": int(idx.size),
+        "type": "SCALAR",
+        "min": [int(idx.min())],
+        "max": [int(idx.max())],
+    }
+    return idx, accessor
+
+
+def json_bytes(gltf: dict) -> bytes:
+    """Compact UTF-8 JSON of a glTF document (unpadded)."""
+    return json.dumps(gltf, separators=(",", ":")).encode("utf-8")
 
 
 class FixedTopologyGlb:
@@ -63,53 +151,26 @@ class FixedTopologyGlb:
         acc.sum_duplicates()
         acc.sort_indices()
         self._acc = acc.astype(np.float32)
-        if n < 65535:
-            idx, ctype = F.astype(np.uint16), 5123
-        else:
-            idx, ctype = F.astype(np.uint32), 5125
-        self._idx = _pad4(np.ascontiguousarray(idx).ravel().tobytes())
+        idx, index = triangle_indices(F, n)
+        self._idx = _pad4(idx.tobytes())
         vec = 12 * n  # float32 VEC3, a multiple of 4
-        views = [
-            {"buffer": 0, "byteOffset": 0, "byteLength": vec, "target": 34962},
-            {"buffer": 0, "byteOffset": vec, "byteLength": vec, "target": 34962},
-            {"buffer": 0, "byteOffset": 2 * vec, "byteLength": idx.nbytes, "target": 34963},
-        ]
-        accessors = [
-            {"componentType": 5126, "count": n, "type": "VEC3", "min": _MIN, "max": _MAX},
-            {"componentType": 5126, "count": n, "type": "VEC3"},
-            {
-                "componentType": ctype,
-                "count": int(idx.size),
-                "type": "SCALAR",
-                "min": [int(idx.min())],
-                "max": [int(idx.max())],
-            },
-        ]
-        for i, acc in enumerate(accessors):
-            acc["bufferView"] = i
-        self._bin_len = 2 * vec + len(self._idx)
-        gltf = {
-            "asset": {"version": "2.0", "generator": "bodyspace"},
-            "scene": 0,
-            "scenes": [{"nodes": [0]}],
-            "nodes": [{"mesh": 0, "name": "body"}],
-            "meshes": [
-                {
-                    "name": "body",
-                    "primitives": [
-                        {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "mode": 4}
-                    ],
-                }
-            ],
-            "buffers": [{"byteLength": self._bin_len}],
-            "bufferViews": views,
-            "accessors": accessors,
-        }
-        js = json.dumps(gltf, separators=(",", ":"))
-        head, rest = js.split(f'"{_MIN}"')
-        mid, tail = rest.split(f'"{_MAX}"')
-        self._js = (head.encode(), mid.encode(), tail.encode())
-        self._bin_header = struct.pack("<II", self._bin_len, _BIN)
+        layout = GlbLayout()
+        position = {"componentType": 5126, "count": n, "type": "VEC3", "min": _MIN, "max": _MAX}
+        normal = {"componentType": 5126, "count": n, "type": "VEC3"}
+        self._offsets = tuple(
+            layout.add(nbytes, target, accessor)[1]
+            for nbytes, target, accessor in (
+                (vec, ARRAY_BUFFER, position),
+                (vec, ARRAY_BUFFER, normal),
+                (idx.nbytes, ELEMENT_ARRAY_BUFFER, index),
+            )
+        )
+        prim = {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "mode": 4}
+        js = json_bytes(layout.document({"name": "body", "primitives": [prim]}))
+        head, rest = js.split(f'"{_MIN}"'.encode())
+        mid, tail = rest.split(f'"{_MAX}"'.encode())
+        self._js = (head, mid, tail)
+        self._layout = layout
 
     def normals(self, V: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(n, 3) float32 area-weighted unit vertex normals (``(0, 1, 0)`` where no area).
@@ -180,16 +241,10 @@ class FixedTopologyGlb:
         lo_s = json.dumps([float(np.float32(x)) for x in lo], separators=(",", ":"))
         hi_s = json.dumps([float(np.float32(x)) for x in hi], separators=(",", ":"))
         head, mid, tail = self._js
-        js = head + lo_s.encode() + mid + hi_s.encode() + tail
-        js += b" " * (-len(js) % 4)
-        o = 28 + len(js)  # start of the binary chunk's data
-        total = o + self._bin_len
-        buf = bytearray(total)
-        struct.pack_into("<IIIII", buf, 0, _GLTF_MAGIC, 2, total, len(js), _JSON)
-        buf[20 : 20 + len(js)] = js
-        buf[o - 8 : o] = self._bin_header
+        buf, o = self._layout.frame(head + lo_s.encode() + mid + hi_s.encode() + tail)
         # positions and normals are written straight into the buffer (no temporaries)
-        np.frombuffer(buf, np.float32, 3 * n, o).reshape(n, 3)[:] = V
-        self._normals(VT, np.frombuffer(buf, np.float32, 3 * n, o + 12 * n).reshape(n, 3))
-        buf[o + 24 * n :] = self._idx
+        at_v, at_n, at_i = (o + x for x in self._offsets)
+        np.frombuffer(buf, np.float32, 3 * n, at_v).reshape(n, 3)[:] = V
+        self._normals(VT, np.frombuffer(buf, np.float32, 3 * n, at_n).reshape(n, 3))
+        buf[at_i:] = self._idx
         return buf

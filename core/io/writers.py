@@ -8,9 +8,7 @@ written, flushed and then renamed over the target with ``os.replace``.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
-import struct
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,6 +18,13 @@ import numpy as np
 
 from core.errors import InputFormatError
 from core.io._geometry import normalize, vertex_normals
+from core.io.glb import (
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    GlbLayout,
+    json_bytes,
+    triangle_indices,
+)
 
 PathLike = str | os.PathLike
 
@@ -184,10 +189,6 @@ def write_obj(
     atomic_write(path, "".join(out).encode("ascii"))
 
 
-def _pad4(b: bytes, fill: bytes = b"\x00") -> bytes:
-    return b + fill * (-len(b) % 4)
-
-
 @dataclass(frozen=True)
 class GlbMorphTarget:
     """One glTF morph target: per-vertex displacements from the base mesh.
@@ -249,6 +250,9 @@ def write_glb(
 ) -> bytes:
     """Encode (and optionally write) a binary glTF 2.0 file with one mesh and one primitive.
 
+    Laid out by :class:`core.io.glb.GlbLayout`, as the cached encoder of bodies
+    (:class:`core.io.glb.FixedTopologyGlb`): the same file for the same mesh.
+
     Parameters
     ----------
     path_or_none : output file, or None to only return the bytes.
@@ -272,26 +276,19 @@ def write_glb(
         raise InputFormatError("cannot write a GLB without vertices")
     N = vertex_normals(V, F) if normals is None else normalize(normals)
     pos = V.astype(np.float32)
-    blobs: list[bytes] = []
-    views: list[dict] = []
-    accessors: list[dict] = []
+    layout = GlbLayout()
+    blocks: list[tuple[int, np.ndarray]] = []  # (offset in the binary chunk, data)
 
     def add(data: np.ndarray, target: int, acc: dict) -> int:
-        offset = sum(len(b) for b in blobs)
-        raw = np.ascontiguousarray(data).tobytes()
-        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(raw)}
-        if target:
-            view["target"] = target
-        views.append(view)
-        blobs.append(_pad4(raw))
-        acc["bufferView"] = len(views) - 1
-        accessors.append(acc)
-        return len(accessors) - 1
+        data = np.ascontiguousarray(data)
+        index, offset = layout.add(data.nbytes, target, acc)
+        blocks.append((offset, data))
+        return index
 
     attrs = {
         "POSITION": add(
             pos,
-            34962,
+            ARRAY_BUFFER,
             {
                 "componentType": 5126,
                 "count": n,
@@ -302,7 +299,7 @@ def write_glb(
         ),
         "NORMAL": add(
             normalize(N.astype(np.float32).astype(np.float64)).astype(np.float32),
-            34962,
+            ARRAY_BUFFER,
             {"componentType": 5126, "count": n, "type": "VEC3"},
         ),
     }
@@ -310,26 +307,13 @@ def write_glb(
         rgba = np.concatenate([colors, np.full((n, 1), 255, np.uint8)], axis=1)
         attrs["COLOR_0"] = add(
             rgba,
-            34962,
+            ARRAY_BUFFER,
             {"componentType": 5121, "normalized": True, "count": n, "type": "VEC4"},
         )
     prim: dict = {"attributes": attrs}
     if F is not None and len(F):
-        if n < 65535:
-            idx, ctype = F.astype(np.uint16), 5123
-        else:
-            idx, ctype = F.astype(np.uint32), 5125
-        prim["indices"] = add(
-            idx.ravel(),
-            34963,
-            {
-                "componentType": ctype,
-                "count": int(idx.size),
-                "type": "SCALAR",
-                "min": [int(idx.min())],
-                "max": [int(idx.max())],
-            },
-        )
+        idx, index = triangle_indices(F, n)
+        prim["indices"] = add(idx, ELEMENT_ARRAY_BUFFER, index)
         prim["mode"] = 4
     else:
         prim["mode"] = 0
@@ -346,7 +330,7 @@ def write_glb(
             ta = {
                 "POSITION": add(
                     d32,
-                    34962,
+                    ARRAY_BUFFER,
                     {
                         "componentType": 5126,
                         "count": n,
@@ -364,7 +348,7 @@ def write_glb(
                     )
                 ta["NORMAL"] = add(
                     dN.astype(np.float32),
-                    34962,
+                    ARRAY_BUFFER,
                     {"componentType": 5126, "count": n, "type": "VEC3"},
                 )
             prim["targets"].append(ta)
@@ -391,11 +375,11 @@ def write_glb(
         ji = np.where(w32 > 0, ji, 0)  # glTF: unused influences point at joint 0 with weight 0
         prim["attributes"]["JOINTS_0"] = add(
             ji.astype(np.uint16),
-            34962,
+            ARRAY_BUFFER,
             {"componentType": 5123, "count": n, "type": "VEC4"},
         )
         prim["attributes"]["WEIGHTS_0"] = add(
-            w32, 34962, {"componentType": 5126, "count": n, "type": "VEC4"}
+            w32, ARRAY_BUFFER, {"componentType": 5126, "count": n, "type": "VEC4"}
         )
         ibm = np.zeros((J, 4, 4), np.float32)
         ibm[:, [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
@@ -416,30 +400,11 @@ def write_glb(
         skins.append({"inverseBindMatrices": ibm_acc, "joints": list(range(first, first + J))})
         if len(roots) == 1:
             skins[0]["skeleton"] = roots[0]
-    binary = b"".join(blobs)
-    gltf = {
-        "asset": {"version": "2.0", "generator": "bodyspace"},
-        "scene": 0,
-        "scenes": [{"nodes": scene_nodes}],
-        "nodes": nodes,
-        "meshes": [mesh],
-        "buffers": [{"byteLength": len(binary)}],
-        "bufferViews": views,
-        "accessors": accessors,
-    }
-    if skins:
-        gltf["skins"] = skins
-    js = _pad4(json.dumps(gltf, separators=(",", ":")).encode("utf-8"), b" ")
-    total = 12 + 8 + len(js) + 8 + len(binary)
-    out = b"".join(
-        [
-            struct.pack("<III", 0x46546C67, 2, total),
-            struct.pack("<II", len(js), 0x4E4F534A),
-            js,
-            struct.pack("<II", len(binary), 0x004E4942),
-            binary,
-        ]
-    )
+    doc = layout.document(mesh, nodes=nodes, scene_nodes=scene_nodes, skins=skins)
+    buf, o = layout.frame(json_bytes(doc))
+    for offset, data in blocks:
+        np.frombuffer(buf, np.uint8, data.nbytes, o + offset)[:] = data.reshape(-1).view(np.uint8)
+    out = bytes(buf)
     if path_or_none is not None:
         atomic_write(path_or_none, out)
     return out
