@@ -235,6 +235,15 @@ class PartQualityOut(BaseModel):
     coverage: float | None = None
     area_change: float | None = None
     displacement_m: float | None = None
+    data_beyond_m: float | None = Field(
+        None, description="hands: unexplained scan data beyond the fitted hand (m)"
+    )
+    hand_bend_deg: float | None = Field(
+        None, description="hands: angle between forearm axis and wrist->hand centroid (°)"
+    )
+    hand_proportion: float | None = Field(
+        None, description="hands: hand reach per forearm length over the template's, max(r, 1/r)"
+    )
 
 
 class FitQualityOut(BaseModel):

@@ -32,7 +32,17 @@ Per part (all distances metres):
   gives it, else the template (real bodies then differ by up to 1.5: heavy arms, long bones);
 - ``displacement_m``: distance between the centroid of the scan points assigned to the part
   within ``NEAR_DISTANCE_M`` (30 mm) of the fit and the centroid of the fitted vertices nearest
-  them (a part shifted along its data).
+  them (a part shifted along its data);
+- ``data_beyond_m`` (hands only, else NaN): how far unexplained scan data reaches beyond the fitted
+  hand's tip along the forearm axis (:func:`data_beyond_hand`). A hand that slid up the forearm
+  sits on the forearm's data (coverage, fit→scan and area look fine) but leaves the real hand's
+  scan points beyond it; mitten and fist hands end where the fitted hand ends or before;
+- ``hand_bend_deg`` (hands only): angle between the forearm axis and the direction from the wrist
+  to the hand's centroid (a hand folded back or off the arm's end; 14-18° on good fits and on the
+  truth of every benchmark body — scanning postures keep the wrists straight);
+- ``hand_proportion`` (hands only): ``max(r, 1/r)``, ``r`` = the hand's reach beyond the wrist
+  (along the forearm axis) per forearm length, over the template's (0.76); a hand slid up a
+  shortened forearm or stretched along it (0.87-1.13 on good fits, 0.91-1.07 on the truths).
 
 Thresholds (``THRESHOLDS``; calibrated on simulated scans ``bench.cases`` and on deliberately
 broken copies of good fits — a part moved by 3-15 cm or collapsed towards its joint; see
@@ -45,14 +55,21 @@ scan→fit p95            > 10 mm      never
 fit→scan p95            > 30 mm      > 60 mm
 coverage                < 0.70       < 0.40
 displacement            > 10 mm      > 25 mm
+data beyond the hand    > 25 mm      > 40 mm
+hand bend               > 30°        > 45°
+hand proportion         > 1.25       > 1.40
 ======================  ===========  ==========
 
 and a part is also ``failed`` when scan data around it is unexplained (scan→fit p95 > 25 mm)
 *and* its own surface is off its data or shrunk/grown by the refinement (coverage < 0.70,
 fit→scan p95 > 30 mm, or area change against the given reference > 1.25): a head collapsed into
 the neck keeps its vertices on the neck's data (fit→scan and coverage look fine) but shrinks and
-leaves the skull's scan points unexplained. A part that slid along its data onto a neighbour's
-(a hand pulled up the forearm) shows only as unexplained scan data: ``suspect``, named.
+leaves the skull's scan points unexplained. A hand that slid along its data onto the forearm's
+shows as scan data beyond its tip, a bent wrist or a wrong hand/forearm proportion (the
+hand-specific limits above are not scaled by the extremity factor). Calibration (fits of
+``bench.cases`` seeds 0-3 and 101 and of good ``bench.realworld`` marker cases all read 0 mm,
+14-18°, 0.87-1.13; lost hands — closed_hair seed 1, cloud seed 6, hands 15-40 cm off the truth —
+read 97 mm, 55° and 148°; closed_touching seed 5's forearms shortened by 22-29 % read 1.49/1.74).
 
 Scan→fit alone never fails a part: scan points the body does not explain may be hair, clothing,
 clutter or the floor as well as a misplaced part; a part off its data also loses coverage and
@@ -115,7 +132,16 @@ THRESHOLDS: dict[str, Threshold] = {
     "fit_to_scan_p95_m": Threshold(0.030, 0.060),
     "coverage": Threshold(0.70, 0.40, higher_is_worse=False),
     "displacement_m": Threshold(0.010, 0.025),
+    "data_beyond_m": Threshold(0.025, 0.040),
+    "hand_bend_deg": Threshold(30.0, 45.0),
+    "hand_proportion": Threshold(1.25, 1.40),
 }
+#: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
+UNSCALED = ("data_beyond_m", "hand_bend_deg", "hand_proportion")
+HAND_FIGURES = UNSCALED
+BEYOND_MIN_POINTS = 20
+BEYOND_RADIUS_M = 0.10
+BEYOND_UNEXPLAINED_M = 0.010
 LOST_SCAN_TO_FIT_M = 0.025
 LOST_AREA_CHANGE = 1.25
 
@@ -133,6 +159,9 @@ class PartQuality:
     coverage: float
     area_change: float
     displacement_m: float
+    data_beyond_m: float = float("nan")
+    hand_bend_deg: float = float("nan")
+    hand_proportion: float = float("nan")
 
 
 @dataclass
@@ -173,7 +202,9 @@ def _limits(part: str) -> dict[str, Threshold]:
         return THRESHOLDS
     f = EXTREMITY_FACTOR
     return {
-        k: Threshold(t.suspect * f, t.failed * f)
+        k: t
+        if k in UNSCALED
+        else Threshold(t.suspect * f, t.failed * f)
         if t.higher_is_worse
         else Threshold(t.suspect / f, t.failed / f, higher_is_worse=False)
         for k, t in THRESHOLDS.items()
@@ -202,11 +233,85 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
             reasons.append(f"{part}: only {v * 100:.0f} % of its surface has scan data nearby")
         elif key == "displacement_m":
             reasons.append(f"{part}: {v * 1000:.0f} mm away from its scan data")
+        elif key == "data_beyond_m":
+            reasons.append(
+                f"{part}: scan data reaches {v * 1000:.0f} mm beyond it along the forearm "
+                "(the hand slid up the arm?)"
+            )
+        elif key == "hand_bend_deg":
+            reasons.append(f"{part}: bent {v:.0f}° off the forearm axis (misplaced hand?)")
+        elif key == "hand_proportion":
+            reasons.append(
+                f"{part}: hand/forearm proportion {v:.2f}× the template's "
+                "(hand slid along a shortened forearm?)"
+            )
         elif key == "scan_to_fit_p95_m":
             reasons.append(f"{part}: scan→fit p95 {v * 1000:.0f} mm")
         else:
             reasons.append(f"{part}: fit→scan p95 {v * 1000:.0f} mm")
     return verdict, reasons
+
+
+def _ring_centre(X: np.ndarray, own: np.ndarray, other: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """Centroid (3,) of the vertices of mask ``own`` sharing an edge (E (m, 2)) with ``other``."""
+    a, b = own[E[:, 0]] & other[E[:, 1]], own[E[:, 1]] & other[E[:, 0]]
+    return X[np.unique(np.concatenate([E[a, 0], E[b, 1]]))].mean(axis=0)
+
+
+def _forearm_frame(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np.ndarray, float]:
+    """Wrist (3,), unit forearm axis (3,) (elbow ring → wrist ring, forearm vertices only, so a
+    displaced hand does not move them) and the hand's reach beyond the wrist along it, metres."""
+    fore, upper = tpl.part_mask(f"forearm_{side}"), tpl.part_mask(f"upper_arm_{side}")
+    hand = tpl.part_mask(f"hand_{side}")
+    E = np.asarray(tpl.edges, dtype=np.int64)
+    elbow, wrist = _ring_centre(X, fore, upper, E), _ring_centre(X, fore, hand, E)
+    a = wrist - elbow
+    length = max(float(np.linalg.norm(a)), 1e-9)
+    return wrist, a / length, length
+
+
+def hand_figures(
+    X: np.ndarray,
+    P: np.ndarray,
+    scan_to_fit: np.ndarray,
+    side: str,
+    template: Template | None = None,
+    p_part16: np.ndarray | None = None,
+) -> dict[str, float]:
+    """Where the fitted hand sits on its arm: data beyond it, bend and proportion (see below).
+
+    ``X`` (13380, 3) fitted body; ``P`` (q, 3) scan points with distances ``scan_to_fit`` (q,) to
+    the fitted surface; ``p_part16`` (q,) the template part of each point's nearest fitted vertex
+    (computed when omitted); ``side`` ``"L"`` or ``"R"``. ``data_beyond_m``: the points of this
+    side's forearm or hand within ``BEYOND_RADIUS_M`` of the forearm axis line and further than
+    ``BEYOND_UNEXPLAINED_M`` from the fit are projected on the axis; the ``BEYOND_MIN_POINTS``-th
+    largest projection minus the fitted hand's furthest (0 when fewer points lie beyond).
+    Definitions of the other two: module docstring.
+    """
+    tpl = template or load_template()
+    hand = tpl.part_mask(f"hand_{side}")
+    wrist, a, fore_len = _forearm_frame(X, side, tpl)
+    reach = float(((X[hand] - wrist) @ a).max())
+    c = X[hand].mean(axis=0) - wrist
+    cos = float(c @ a) / max(float(np.linalg.norm(c)), 1e-12)
+    bend = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    t_wrist, t_a, t_len = _forearm_frame(tpl.V, side, tpl)
+    t_ratio = float(((tpl.V[hand] - t_wrist) @ t_a).max()) / t_len
+    r = max(reach / fore_len / t_ratio, 1e-9)
+    if p_part16 is None:
+        from scipy.spatial import cKDTree
+
+        p_part16 = np.asarray(tpl.part)[cKDTree(X).query(P, k=1, workers=-1)[1]]
+    names = tpl.part_names
+    mine = (p_part16 == names.index(f"forearm_{side}")) | (p_part16 == names.index(f"hand_{side}"))
+    D = P - wrist
+    s = D @ a
+    rad = np.linalg.norm(D - s[:, None] * a, axis=1)
+    sel = mine & (rad < BEYOND_RADIUS_M) & (scan_to_fit > BEYOND_UNEXPLAINED_M) & (s > reach)
+    beyond = 0.0
+    if sel.sum() >= BEYOND_MIN_POINTS:
+        beyond = float(np.sort(s[sel])[-BEYOND_MIN_POINTS] - reach)
+    return {"data_beyond_m": beyond, "hand_bend_deg": bend, "hand_proportion": max(r, 1.0 / r)}
 
 
 def _triangle_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -273,6 +378,7 @@ def assess_fit(
 
     _, nearest = cKDTree(X).query(P, k=1, workers=-1)
     p_part = labels[nearest]
+    p_part16 = np.asarray(tpl.part)[nearest]
     # fitted vertices -> the scan surface, and compatible data within the coverage distance
     f2s = fit_to_scan_distance(index, X)
     corr = index.closest_compatible(
@@ -313,7 +419,10 @@ def assess_fit(
             "coverage": float(covered[own].mean()),
             "area_change": float(area_change[i]),
             "displacement_m": disp,
+            **dict.fromkeys(HAND_FIGURES, float("nan")),
         }
+        if name.startswith("hand_"):
+            figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16))
         pv, pr = _judge(name, figures)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
@@ -343,6 +452,9 @@ def assess_fit(
             coverage=figures["coverage"],
             area_change=figures["area_change"],
             displacement_m=disp,
+            data_beyond_m=figures["data_beyond_m"],
+            hand_bend_deg=figures["hand_bend_deg"],
+            hand_proportion=figures["hand_proportion"],
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:

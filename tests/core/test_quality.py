@@ -103,6 +103,40 @@ def test_arm_swung_out_of_its_data_is_not_good(case, fitted, deg):
     assert any(r.startswith("arm_L:") for r in q.reasons)
 
 
+@pytest.mark.parametrize("slide_m", [0.05, 0.10, 0.20])
+def test_hand_slid_up_the_forearm_fails_naming_the_hand(case, fitted, slide_m):
+    # the hand moved towards the elbow along the forearm axis: it sits on the forearm's data
+    # (coverage and fit->scan look fine) and leaves the real hand's scan points beyond it
+    tpl = load_template()
+    X = fitted.vertices.copy()
+    E = np.asarray(tpl.edges)
+    fore = tpl.part_mask("forearm_R")
+
+    def ring(other: np.ndarray) -> np.ndarray:
+        b = (fore[E[:, 0]] & other[E[:, 1]]) | (other[E[:, 0]] & fore[E[:, 1]])
+        return X[np.unique(E[b])][fore[np.unique(E[b])]].mean(axis=0)
+
+    axis = ring(tpl.part_mask("hand_R")) - ring(tpl.part_mask("upper_arm_R"))
+    X[_mask("hand_R")] -= slide_m * axis / np.linalg.norm(axis)
+    q = assess_fit(case.scan, X)
+    assert q.quality == "failed", q.reasons
+    assert q.parts["hand_R"].quality == "failed" and q.parts["hand_L"].quality == "good"
+    assert any(r.startswith("hand_R:") for r in q.reasons)
+    beyond = THRESHOLDS["data_beyond_m"]
+    assert q.parts["hand_R"].data_beyond_m > (beyond.failed if slide_m >= 0.1 else beyond.suspect)
+    assert q.parts["hand_R"].hand_proportion > THRESHOLDS["hand_proportion"].failed
+
+
+def test_hands_of_good_fits_and_truths_sit_at_the_arms_end(case, fitted):
+    for X in (fitted.vertices, case.truth):
+        q = assess_fit(case.scan, X)
+        for side in ("hand_L", "hand_R"):
+            p = q.parts[side]
+            assert p.data_beyond_m < THRESHOLDS["data_beyond_m"].suspect
+            assert p.hand_bend_deg < THRESHOLDS["hand_bend_deg"].suspect
+            assert p.hand_proportion < THRESHOLDS["hand_proportion"].suspect
+
+
 def test_lifted_foot_is_not_good(case, fitted):
     X = fitted.vertices.copy()
     X[_mask("foot_R")] += [0.0, 0.03, 0.0]
