@@ -160,6 +160,10 @@ def body_only(scan: Scan) -> tuple[Scan, str | None]:
 ARM_HYPOTHESES = (10.0, 30.0, 50.0)
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
+#: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
+#: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
+#: of a raw scan, raw-0 of ``core.synth.scanner_outputs``).
+SEARCH_POINT_WEIGHT = 0.1
 
 
 @dataclass
@@ -248,6 +252,7 @@ def choose_alignment(
             iterations=iterations, k_schedule=(0, 0, 6) if articulated else (0,),
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
+            point_weight=SEARCH_POINT_WEIGHT,
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []

@@ -128,6 +128,7 @@ class PriorOptions:
     initial_pose: dict[str, np.ndarray] | None = None
     initial_coefficients: np.ndarray | None = None
     max_angle_deg: float = 60.0
+    point_weight: float = 0.0
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -317,6 +318,7 @@ def fit_body_prior(
     initial_pose: dict[str, np.ndarray] | None = None,
     initial_coefficients: np.ndarray | None = None,
     max_angle_deg: float = 60.0,
+    point_weight: float = 0.0,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -350,6 +352,9 @@ def fit_body_prior(
     max_angle_deg : template and scan normals further apart are not paired; above 90° the
         sign of the scan's normals is not trusted (180°: any normal, for a coarse search on
         scans whose orientation may be wrong).
+    point_weight : weight of point-to-point data rows (all three coordinates) next to the
+        point-to-plane ones (0: point-to-plane only). Without markers, point-to-plane pairs let
+        the body slide along the scan's walls (legs grow below soles a raw scan lacks).
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -413,6 +418,12 @@ def fit_body_prior(
         sw = np.sqrt(w)
         A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
         b_d = np.einsum("rc,rc->r", Np, Q - Xp[rows]) * sw
+        if point_weight > 0 and nd:  # point-to-point rows: no sliding along the surface
+            pw = sw * np.sqrt(point_weight)
+            A_p = (Jall[:nd] * pw[:, None, None]).reshape(-1, k + 3 * B)
+            b_p = ((Q - Xp[rows]) * pw[:, None]).ravel()
+        else:
+            A_p, b_p = np.zeros((0, k + 3 * B)), np.zeros(0)
         # robust marker weights, annealed: a misplaced or misnamed marker loses its pull
         res_m = np.linalg.norm(Qm - Xp[marker_vid], axis=1) * sim.s
         mw = marker_weight * marker_weights(
@@ -423,8 +434,8 @@ def fit_body_prior(
         b_m = ((Qm - Xp[marker_vid]) * np.sqrt(mw)[:, None]).ravel()
         rms_d = float(np.sqrt(np.mean(b_d**2 / np.maximum(w, 1e-9)))) if nd else float("nan")
         # normal equations with priors (data rows are in metres: scale priors to mm² units)
-        H = A_d.T @ A_d + A_m.T @ A_m
-        g = A_d.T @ b_d + A_m.T @ b_m
+        H = A_d.T @ A_d + A_m.T @ A_m + A_p.T @ A_p
+        g = A_d.T @ b_d + A_m.T @ b_m + A_p.T @ b_p
         pose_w = pose_prior_weight if it >= freeze_pose else 1e6
         prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_w)]
         if k_schedule:
