@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session
 
 from service.blobs import BlobStore
 from service.db import aware
-from service.deps import SessionDep, SettingsDep, StoreDep, TenantId, require_json
+from service.deps import Cursor, SessionDep, SettingsDep, StoreDep, TenantId, require_json
 from service.errors import ApiError, clip
 from service.models import Blob, Body, Fit, new_id
 from service.privacy import scrub_deleted
@@ -34,19 +34,19 @@ from service.schemas import (
     BodyEdit,
     BodyMeasurements,
     BodyMesh,
-    BodyMorph,
     BodyOut,
     BodyPage,
     BodyPose,
     BodySource,
     ErrorResponse,
+    FitBody,
     MeasurementValue,
+    MorphBody,
     MorphRequest,
 )
 from service.shape_routes import (
     GLB,
     MODELS,
-    _features,
     _template_faces,
     _wants_json,
     body_glb,
@@ -296,31 +296,19 @@ def create_body(
             f"no model {body.model!r}; models: {', '.join(MODELS)}",
             field="model",
         )
-    if body.morph is not None:
+    if isinstance(body, MorphBody):
         row = _create_morph(body, tenant, session, store)
-        response.headers["Location"] = f"/v1/bodies/{row.id}"
-        return _body_out(row)
-    if body.sex is None:
-        raise ApiError("missing_field", "sex is required ('female' or 'male')", field="sex")
-    m = get_model(body.model)
-    if body.fit_id is not None:
-        if _features(body) or body.pca is not None or body.seed is not None:
-            raise ApiError(
-                "validation_error",
-                "a body from a fit takes only fit_id, sex and model (no features, pca or seed)",
-                field="fit_id",
-            )
+    elif isinstance(body, FitBody):
+        m = get_model(body.model)
         m.space(body.sex)  # the model has this sex (else out_of_range)
         fit = _own(session, Fit, body.fit_id, tenant, "fit")
-        V = _fit_vertices(store, tenant, fit)
-        params: dict[str, Any] = {"fit_id": fit.id}
         row = _store_body(
-            session, store, tenant=tenant, V=V, model=body.model, sex=body.sex,
-            source="fit", params=params, fit_id=fit.id,
+            session, store, tenant=tenant, V=_fit_vertices(store, tenant, fit), model=body.model,
+            sex=body.sex, source="fit", params={"fit_id": fit.id}, fit_id=fit.id,
         )  # fmt: skip
     else:
-        V, _ = synthesize_body(m, body)  # its warnings: BodyOut.warnings
-        params = body.model_dump(exclude={"model", "sex", "fit_id"}, exclude_none=True)
+        V, _ = synthesize_body(get_model(body.model), body)  # its warnings: BodyOut.warnings
+        params = body.model_dump(exclude={"model", "sex"}, exclude_none=True)
         row = _store_body(
             session, store, tenant=tenant, V=V, model=body.model, sex=body.sex,
             source="model", params=params,
@@ -329,17 +317,11 @@ def create_body(
     return _body_out(row)
 
 
-def _create_morph(body: BodyCreate, tenant: str, session: Session, store: BlobStore) -> Body:
+def _create_morph(body: MorphBody, tenant: str, session: Session, store: BlobStore) -> Body:
     """Store ``(1 - t) from + t to``; model and sex of the nearer body (``sex`` may override)."""
     from core.transfer import morph
 
-    spec: BodyMorph = body.morph  # type: ignore[assignment]
-    if body.fit_id is not None or _features(body) or body.pca is not None or body.seed is not None:
-        raise ApiError(
-            "validation_error",
-            "a morph takes only morph and optionally sex (no fit_id, features, pca or seed)",
-            field="morph",
-        )
+    spec = body.morph
     a = _own(session, Body, spec.from_, tenant, "body")
     b = _own(session, Body, spec.to, tenant, "body")
     fits = {f for f in (a.fit_id, b.fit_id) if f is not None}
@@ -395,7 +377,7 @@ def list_bodies(
     tenant: TenantId,
     session: SessionDep,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
-    cursor: str | None = None,
+    cursor: Cursor = None,
     fit_id: str | None = None,
     source: BodySource | None = None,
 ) -> BodyPage:

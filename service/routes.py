@@ -18,7 +18,15 @@ from sqlalchemy.orm import Session
 
 from service.blobs import BlobStore, sha256_file
 from service.db import aware, session_scope
-from service.deps import RunnerDep, SessionDep, SettingsDep, StoreDep, TenantId, require_json
+from service.deps import (
+    Cursor,
+    RunnerDep,
+    SessionDep,
+    SettingsDep,
+    StoreDep,
+    TenantId,
+    require_json,
+)
 from service.errors import ApiError, clip
 from service.fit_job import RESULT_FORMATS, result_key
 from service.models import Blob, Fit, Scan, Tenant, new_id, utcnow
@@ -282,7 +290,7 @@ def list_scans(
     tenant: TenantId,
     session: SessionDep,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
-    cursor: str | None = None,
+    cursor: Cursor = None,
 ) -> ScanPage:
     """The caller's scans, newest first (``next_cursor`` pages on)."""
     rows, nxt = _page(session, Scan, [Scan.tenant_id == tenant], limit, cursor)
@@ -501,7 +509,7 @@ def list_fits(
     tenant: TenantId,
     session: SessionDep,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
-    cursor: str | None = None,
+    cursor: Cursor = None,
     scan_id: str | None = None,
     state: Literal["queued", "running", "succeeded", "failed"] | None = None,
     mode: Literal["full", "markerless", "markers_only", "measurements"] | None = None,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
@@ -22,6 +23,50 @@ FitMode = Literal["full", "markerless", "markers_only", "measurements"]
 MarkerUnits = Literal["auto", "m", "cm", "mm"]
 Sex = Literal["female", "male"]
 MarkerUp = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
+
+
+def _keys_from(load: Callable[[], Iterable[str]], **items: Any) -> Callable[[dict], None]:
+    """A field's JSON-schema extra: the object's keys are among ``load()`` (read when the
+    document is built, not at import), ``items`` added to the schema of its values (e.g.
+    ``minItems``). Documents what the route checks itself (with its own error code)."""
+
+    def extra(schema: dict[str, Any]) -> None:
+        schema["propertyNames"] = {"enum": sorted(set(load()))}
+        for option in schema.get("anyOf", [schema]):  # X | None: the object branch
+            if option.get("type") == "object" and items:
+                option["additionalProperties"] = {**option["additionalProperties"], **items}
+
+    return extra
+
+
+def _landmarks() -> Iterable[str]:
+    from core.template import load_template
+
+    return load_template().landmarks
+
+
+def _measurements() -> Iterable[str]:
+    from core.measure import MEASUREMENTS
+
+    return MEASUREMENTS
+
+
+def _bones() -> Iterable[str]:
+    from core.rig import load_rig
+
+    return load_rig().names
+
+
+def _edit_features() -> Iterable[str]:
+    from service.shape_routes import MODELS, get_model
+
+    return {
+        f
+        for name in MODELS
+        for key, sp in get_model(name).spaces.items()
+        if key != "joint"
+        for f in sp.features.names
+    }
 
 
 class ErrorInfo(BaseModel):
@@ -108,6 +153,7 @@ class MeasurementsOptions(ScanFitOptions):
 
 Markers = dict[str, list[StrictFloat]]
 _MARKERS_DOC = "landmark name -> [x, y, z] in the scan file's units and axes"
+_MARKER_KEYS = _keys_from(_landmarks, minItems=3, maxItems=3)
 
 
 class _FitBase(BaseModel):
@@ -119,7 +165,9 @@ class FullFit(_FitBase):
 
     mode: Literal["full"] = Field("full", description="scan + markers (the default)")
     scan_id: str = Field(description="the scan to fit")
-    markers: Markers | None = Field(None, description=_MARKERS_DOC + " (else the scan's)")
+    markers: Markers | None = Field(
+        None, description=_MARKERS_DOC + " (else the scan's)", json_schema_extra=_MARKER_KEYS
+    )
     options: ScanFitOptions = Field(default_factory=ScanFitOptions)
 
 
@@ -144,6 +192,7 @@ class MarkersOnlyFit(_FitBase):
     markers: Markers | None = Field(
         None,
         description=_MARKERS_DOC + " (without scan_id: metres, +Y up unless units/up are given)",
+        json_schema_extra=_MARKER_KEYS,
     )
     units: MarkerUnits | None = Field(
         None,
@@ -177,7 +226,8 @@ class MeasurementsFit(_FitBase):
         min_length=1,
         description="ANSUR II measurement name (as listed by core.measure, e.g. 'stature', "
         "'weightkg', 'waistcircumference') -> value in metres (weightkg in kg)",
-        json_schema_extra={"examples": [{"stature": 1.65, "weightkg": 62.0}]},
+        json_schema_extra=_keys_from(_measurements),
+        examples=[{"stature": 1.65, "weightkg": 62.0}],
     )
     scan_id: None = Field(None, description="does not apply (null only)")
     markers: None = Field(None, description="does not apply (null only)")
@@ -190,7 +240,9 @@ def _fit_mode(v: Any) -> Any:
 
 
 #: Tags of the discriminated unions (stripped from validation errors' locations).
-UNION_TAGS = frozenset(("full", "markerless", "markers_only", "measurements"))
+UNION_TAGS = frozenset(
+    ("full", "markerless", "markers_only", "measurements", "from_model", "from_fit", "from_morph")
+)
 
 #: A fit request, one schema per ``mode`` (``full`` when absent).
 FitCreate = Annotated[
@@ -392,13 +444,9 @@ class BodyMorph(BaseModel):
     t: float = Field(ge=0, le=1, allow_inf_nan=False, description="0 = `from`, 1 = `to`")
 
 
-class BodyCreate(SynthesizeRequest):
-    """A body to store: synthesised from a shape model (the fields of
-    ``POST /v1/models/{model}/synthesize``: ``{sex, height_m?, weight_kg?, age?,
-    <measurement>?}``, ``{sex, pca}`` or ``{sex, seed}``), the fitted body of a succeeded fit
-    (``{fit_id, sex}``: a scan has no sex, so it must be given), or an in-between body of two
-    stored bodies (``{morph: {from, to, t}}``: model and sex those of the nearer body unless
-    ``sex`` is given)."""
+class ModelBody(SynthesizeRequest):
+    """A body synthesised from a shape model: the fields of ``POST /v1/models/{model}/synthesize``
+    (``{sex, height_m?, weight_kg?, age?, <measurement>?}``, ``{sex, pca}`` or ``{sex, seed}``)."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -406,20 +454,59 @@ class BodyCreate(SynthesizeRequest):
             "examples": [
                 {"sex": "female", "height_m": 1.65, "weight_kg": 60},
                 {"model": "default", "sex": "male", "seed": 7},
-                {"sex": "male", "fit_id": "fit_0123456789abcdef0123"},
-                {"morph": {"from": "bdy_0123456789abcdef0123", "to": "bdy_...", "t": 0.3}},
             ],
         },
     )
 
-    sex: Sex | None = None  # type: ignore[assignment]  # required unless morph
     model: str = Field("default", description="the shape model (`GET /v1/models`)")
-    fit_id: str | None = Field(
-        None, description="take the body of this succeeded fit (then only `sex` and `model`)"
+
+
+class FitBody(BaseModel):
+    """The fitted body of a succeeded fit (a scan has no sex, so it must be given)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"sex": "male", "fit_id": "fit_0123456789abcdef0123"}]},
     )
-    morph: BodyMorph | None = Field(
-        None, description="store the in-between body of two of your bodies (then only `sex`)"
+
+    fit_id: str = Field(description="take the body of this succeeded fit")
+    sex: Sex
+    model: str = Field("default", description="the shape model (`GET /v1/models`)")
+
+
+class MorphBody(BaseModel):
+    """An in-between body of two stored bodies: model and sex those of the nearer body unless
+    ``sex`` is given."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"morph": {"from": "bdy_0123456789abcdef0123", "to": "bdy_...", "t": 0.3}}]
+        },
     )
+
+    morph: BodyMorph = Field(description="store the in-between body of two of your bodies")
+    sex: Sex | None = Field(None, description="default: the nearer body's")
+    model: str = Field(
+        "default", description="must name a model (`GET /v1/models`); the nearer body's is used"
+    )
+
+
+def _body_source(v: Any) -> Any:
+    """The tag of a body request: ``morph`` or ``fit_id`` present, else a model body."""
+    if isinstance(v, dict):
+        return "from_morph" if "morph" in v else "from_fit" if "fit_id" in v else "from_model"
+    return {ModelBody: "from_model", FitBody: "from_fit", MorphBody: "from_morph"}.get(type(v))
+
+
+#: A body to store, one schema per source (OpenAPI ``oneOf``): from a shape model, from a fit
+#: (``fit_id``) or an in-between body (``morph``); the sources exclude each other.
+BodyCreate = Annotated[
+    Annotated[ModelBody, Tag("from_model")]
+    | Annotated[FitBody, Tag("from_fit")]
+    | Annotated[MorphBody, Tag("from_morph")],
+    Discriminator(_body_source),
+]
 
 
 Posture = Literal["standing", "seated", "driving", "reach"]
@@ -437,13 +524,20 @@ class BodyPose(BaseModel):
             "examples": [
                 {"posture": "seated"},
                 {"rotations": {"upperleg01.L": [-1.2, 0, 0], "lowerleg01.L": [1.0, 0, 0]}},
-            ]
+            ],
+            "anyOf": [  # a posture and/or at least one rotation
+                {"required": ["posture"], "properties": {"posture": {"type": "string"}}},
+                {"required": ["rotations"], "properties": {"rotations": {"minProperties": 1}}},
+            ],
         },
     )
 
     posture: Posture | None = Field(None, description="a named posture")
-    rotations: dict[str, list[float]] = Field(
-        default_factory=dict, description="bone name -> rotation vector [x, y, z] (radians)"
+    rotations: dict[str, list[StrictFloat]] = Field(
+        default_factory=dict,
+        description="bone name (the rig's 163: `propertyNames`) -> rotation vector [x, y, z] "
+        "(radians)",
+        json_schema_extra=_keys_from(_bones, minItems=3, maxItems=3),
     )
 
 
@@ -480,18 +574,24 @@ class BodyEdit(BaseModel):
             "examples": [
                 {"delta": {"weight_kg": 10}},
                 {"delta": {"height_m": 0.05}, "target": {"weight_kg": 80}, "keep": []},
-            ]
+            ],
+            "anyOf": [  # at least one change
+                {"required": ["delta"], "properties": {"delta": {"minProperties": 1}}},
+                {"required": ["target"], "properties": {"target": {"minProperties": 1}}},
+            ],
         },
     )
 
     delta: dict[str, FiniteNumber] = Field(
         default_factory=dict,
         max_length=64,
+        json_schema_extra=_keys_from(_edit_features),
         description="feature -> change (height_m m, weight_kg kg, age years, measurements m)",
     )
     target: dict[str, FiniteNumber] = Field(
         default_factory=dict,
         max_length=64,
+        json_schema_extra=_keys_from(_edit_features),
         description="feature -> absolute new value (turned into a change from the body's "
         "current features); a feature may not be in both `delta` and `target`",
     )
