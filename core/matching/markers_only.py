@@ -14,7 +14,7 @@ import numpy as np
 from core.errors import MarkerError, UnitsError
 from core.registration.fit import FitReport, FitResult
 from core.registration.initialization import MarkerAlignment, align_markers
-from core.registration.shape_prior import fit_body_prior
+from core.registration.shape_prior import ShapeBasis, fit_body_prior
 from core.template import Template, load_template
 from core.threads import single_blas_thread
 
@@ -70,8 +70,12 @@ def fit_markers_only(
     template: Template | None = None,
     iterations: int = 12,
     marker_outlier_distance: float = 0.05,
+    basis: ShapeBasis | None = None,
 ) -> FitResult:
     """Fit a body to markers (name -> (3,) metres, +Y up) without a scan.
+
+    ``basis``: the shape space whose most likely body is sought (default the MakeHuman basis;
+    a learned one: ``ShapeModel.shape_basis``).
 
     Returns a :class:`FitResult` whose ``vertices`` are the body in the markers' frame; the
     data weights are all 0 (no scan) and ``affines`` the identity.
@@ -91,7 +95,7 @@ def fit_markers_only(
     pos = np.array([m[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
     prior = fit_body_prior(
         None, tpl.V, np.asarray(tpl.F, np.int64), vid, pos, align.similarity,
-        iterations=iterations,
+        iterations=iterations, basis=basis,
     )  # fmt: skip
     report = FitReport(markers_used=list(align.used), markers_dropped=list(align.dropped))
     report.warnings.extend(align.warnings)

@@ -10,8 +10,14 @@ to the markers and the scan (point-to-plane) by damped Gauss–Newton with corre
 ``U c`` a linear shape basis (principal directions of the CC0 MakeHuman shape targets: sex, age,
 muscle, weight, height, proportions, regional targets) with a Gaussian prior on ``c``; ``ω`` small
 rotations of the major bones of the standard rig (linear blend skinning, joints re-placed on the
-shaped body); ``S`` a similarity. The affine fit then starts from that body. Once a shape space of
-registered bodies exists (paper §4) it can replace the basis.
+shaped body); ``S`` a similarity. The affine fit then starts from that body.
+
+The shape space enters through one interface, :class:`ShapeBasis` (mean body, orthonormal basis,
+prior variances): the MakeHuman basis (:func:`load_shape_basis`, centred on the caller's template)
+or a learned PCA shape space of registered bodies (paper §4; :meth:`ShapeBasis.from_pca`,
+:meth:`core.shapespace.model.ShapeModel.shape_basis`). The full fit (``PriorOptions.basis``),
+the markers-only fit (``fit_markers_only(basis=...)``) and the markerless search all hand it to
+:func:`fit_body_prior`.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,6 +35,9 @@ from core.registration.correspondence import ScanIndex
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
 from core.rig import Rig, bone_transforms, joint_positions, load_rig
+
+if TYPE_CHECKING:
+    from core.shapespace.pca import PCA
 
 # Bones whose rotation the prior estimates (the rest follow their parents).
 POSE_BONES = (
@@ -40,18 +50,37 @@ POSE_BONES = (
 
 @dataclass(frozen=True)
 class ShapeBasis:
-    """Orthonormal displacement basis over template vertices.
+    """A linear shape space as the body prior uses it: rest body ``mean + U c``, ``c ~ N(0, σ²)``.
 
     U : (n, 3, k) float64 basis displacements, metres per unit coefficient (orthonormal).
     sigma : (k,) float64 prior standard deviation of each coefficient (metres).
+    mean : (n, 3) float64 body the basis is centred on, metres, template order and rest pose;
+        ``None``: the template the caller fits (the MakeHuman basis is a set of displacements of
+        the template).
     """
 
     U: np.ndarray
     sigma: np.ndarray
+    mean: np.ndarray | None = None
 
     @property
     def k(self) -> int:
         return self.U.shape[2]
+
+    @property
+    def variances(self) -> np.ndarray:
+        """(k,) prior variance of each coefficient, m²."""
+        return self.sigma**2
+
+    @classmethod
+    def from_pca(cls, pca: PCA, k: int | None = None) -> ShapeBasis:
+        """The first ``k`` (default all) components of a learned PCA shape space
+        (``core.shapespace.pca.PCA``: mean, orthonormal components, variances of the weights)."""
+        k = pca.k if k is None else min(int(k), pca.k)
+        n = pca.n_vertices
+        U = np.asarray(pca.components[:k], dtype=np.float64).T.reshape(n, 3, k)
+        mean = np.asarray(pca.mean, dtype=np.float64).reshape(n, 3)
+        return cls(U=U, sigma=np.sqrt(np.asarray(pca.variances[:k], dtype=np.float64)), mean=mean)
 
 
 BASIS_ASSET = Path(__file__).resolve().parents[1] / "assets" / "shape_basis.npz"
@@ -129,6 +158,7 @@ class PriorOptions:
     initial_coefficients: np.ndarray | None = None
     max_angle_deg: float = 60.0
     point_weight: float = 0.0
+    basis: ShapeBasis | None = None
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -325,7 +355,8 @@ def fit_body_prior(
     Parameters
     ----------
     index : the scan (metres, canonical frame), or None to fit the markers alone.
-    V0 : (n, 3) template, metres; F : (m, 3) its triangles.
+    V0 : (n, 3) template, metres; F : (m, 3) its triangles. A ``basis`` with a ``mean`` (a learned
+        shape space) replaces V0 by that mean (same vertex order and triangles).
     marker_vid : (km,) template vertices of the markers; marker_pos : (km, 3) metres.
     sim : initial similarity (template → scan), e.g. from the markers.
     shape_prior_weight : weight of ‖c/σ‖² relative to the data (in units of one data row, mm²).
@@ -349,6 +380,8 @@ def fit_body_prior(
     initial_pose : bone name (of :data:`POSE_BONES`) -> (3, 3) local rotation to start from
         (a markerless search's arm-pose hypothesis); others start at the identity.
     initial_coefficients : (k,) shape coefficients to start from (default 0).
+    basis : the shape space (:class:`ShapeBasis`; default the MakeHuman basis,
+        :func:`load_shape_basis`).
     max_angle_deg : template and scan normals further apart are not paired; above 90° the
         sign of the scan's normals is not trusted (180°: any normal, for a coarse search on
         scans whose orientation may be wrong).
@@ -359,6 +392,10 @@ def fit_body_prior(
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
     basis = basis or load_shape_basis()
+    if basis.mean is not None:
+        if basis.mean.shape != np.shape(V0):
+            raise ValueError(f"shape space mean {basis.mean.shape} != V0 {np.shape(V0)}")
+        V0 = basis.mean
     U, sigma = basis.U, basis.sigma
     n, k = len(V0), basis.k
     art = _Articulation(load_rig(), POSE_BONES)

@@ -20,7 +20,7 @@ import json
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from core.shapespace.errors import ModelFormatError, OutOfRangeError
 from core.shapespace.features import CUBE_ROOT, FeatureMap, encode
 from core.shapespace.pca import PCA, from_model_frame, to_model_frame
 from core.template import ASSET_DIR, load_template
+
+if TYPE_CHECKING:
+    from core.registration.shape_prior import ShapeBasis
 
 SPACES = ("female", "male", "joint")
 FORMAT_VERSION = 1
@@ -150,6 +153,14 @@ class ShapeModel:
                 feature="sex", value=sex, supported=list(self.spaces),
             )  # fmt: skip
         return self.spaces[sex]
+
+    def shape_basis(self, sex: str = "joint", k: int | None = None) -> ShapeBasis:
+        """The space of ``sex`` as the body prior's shape space (first ``k`` components; default
+        all): ``core.registration.shape_prior.ShapeBasis`` for the markers-only, markerless and
+        full fits."""
+        from core.registration.shape_prior import ShapeBasis
+
+        return ShapeBasis.from_pca(self.space(sex).pca, k)
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready summary: per space the accepted features, their accepted ``range`` (beyond
