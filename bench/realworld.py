@@ -13,11 +13,13 @@ body" / ``exception``), the fit report's quality verdict, scan→fit median and 
 fitted-surface distances), fit→scan mean with the fitted surface sampled **by area** (30 000
 points, so the dense face and hands do not dominate), correspondence error against the truth
 (mean, p95, all 13 380 vertices), per-part scan→fit p95 (scan points assigned to the part of
-their nearest fitted vertex), time (wall and CPU of the fit). The summary repeats issue 12's
-"Done when" lines; closed-vs-raw twins (``closed_lowres`` and ``raw`` of the same seed: one body)
-are compared vertex by vertex in the body's frame (mean over all vertices, and without the hands,
-which a closed mesh turns into mittens). Results go to ``bench/results/realworld-DATE[-markers]``
-(.txt table and .json) with the git commit.
+their nearest fitted vertex), per quality part (``core.registration.quality.PARTS``) the offset
+of the fitted part's centroid from the true part's (``part_truth_offset_mm``; a part more than
+``LOST_PART_MM`` off is *lost*) and the part's verdict, time (wall and CPU of the fit). The
+summary repeats issue 12's "Done when" lines; closed-vs-raw twins (``closed_lowres`` and ``raw``
+of the same seed: one body) are compared vertex by vertex in the body's frame (mean over all
+vertices, and without the hands, which a closed mesh turns into mittens). Results go to
+``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--jobs 1] [--kinds K1,K2]``.
 """
@@ -45,6 +47,8 @@ RESULTS = ROOT / "bench" / "results"
 MM = 1000.0
 #: issue 12's targets (mm) and rate
 TARGETS = {"fit_rate": 0.95, "median": 2.0, "p95": 6.0, "fit_to_scan": 2.0, "twins": 3.0}
+#: a quality part whose centroid is further than this from the truth's is lost (mm)
+LOST_PART_MM = 50.0
 
 
 def _commit() -> str:
@@ -167,6 +171,7 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     if q is not None:
         row["quality"] = q.quality
         row["quality_reasons"] = list(q.reasons)
+        row["part_quality"] = {k: p.quality for k, p in q.parts.items()}
     row["warnings"] = list(rep.warnings)
     row["frame"] = info["frame"]
     truth = scan.frame.to_canonical(case.truth)
@@ -180,6 +185,15 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     e = np.linalg.norm(result.vertices - truth, axis=1)
     row["corr_mean_mm"] = float(e.mean() * MM)
     row["corr_p95_mm"] = float(np.percentile(e, 95) * MM)
+    from core.registration.quality import part_labels
+
+    labels, pnames = part_labels()
+    row["part_truth_offset_mm"] = {
+        name: float(
+            np.linalg.norm(result.vertices[labels == i].mean(0) - truth[labels == i].mean(0)) * MM
+        )
+        for i, name in enumerate(pnames)
+    }
     # the fit in the generator's body frame (canonical metres of the case), for the twins
     A = case.to_file
     fit_file = scan.frame.to_file(result.vertices)
@@ -230,7 +244,8 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
     """The table and the summary lines."""
     lines = [
         f"{'case':<20} {'outcome':<9} {'quality':<8} {'s2f med':>7} {'s2f p95':>7} "
-        f"{'body95':>6} {'f2s':>6} {'corr':>6} {'corr95':>6} {'worst part p95':<22} {'fit s':>6}  "
+        f"{'body95':>6} {'f2s':>6} {'corr':>6} {'corr95':>6} {'worst part p95':<22} "
+        f"{'off truth':<14} {'fit s':>6}  "
         "description"
     ]
     for r in rows:
@@ -239,12 +254,15 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
             ((v, k) for k, v in pp.items() if v is not None and np.isfinite(v)), default=None
         )
         wp = f"{worst[1]} {worst[0]:.0f}" if worst else (r.get("error", "")[:40])
+        off = r.get("part_truth_offset_mm") or {}
+        wo = max(((v, k) for k, v in off.items()), default=None)
+        wt = f"{wo[1]} {wo[0]:.0f}" if wo else "-"
         lines.append(
             f"{r['kind'] + '-' + str(r['seed']):<20} {r['outcome']:<9} {r.get('quality', '-'):<8} "
             f"{_f(r.get('scan_to_fit_median_mm')):>7} {_f(r.get('scan_to_fit_p95_mm')):>7} "
             f"{_f(r.get('body_scan_to_fit_p95_mm')):>6} "
             f"{_f(r.get('fit_to_scan_mean_mm')):>6} {_f(r.get('corr_mean_mm')):>6} "
-            f"{_f(r.get('corr_p95_mm')):>6} {wp:<22} {_f(r.get('fit_wall_s')):>6}  "
+            f"{_f(r.get('corr_p95_mm')):>6} {wp:<22} {wt:<14} {_f(r.get('fit_wall_s')):>6}  "
             f"{r.get('description', '')}"
         )
     lines.append("")
@@ -334,7 +352,26 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         f"{sum(r.get('quality') == 'good' and r['scan_to_fit_p95_mm'] > 6.0 for r in ok)}",
         f"fit time: median {_f(med_time)} s wall, {_f(med_cpu)} s CPU",
     ]
+    lost = [(r, lost_parts(r)) for r in ok if lost_parts(r)]
+    lines.append(
+        f"fits with a lost part (centroid > {LOST_PART_MM:.0f} mm off the truth's): "
+        f"{len(lost)}/{len(ok)}; 'good' verdicts with a lost part: "
+        f"{sum(r.get('quality') == 'good' for r, _ in lost)}; lost parts not 'failed': "
+        f"{sum(r.get('part_quality', {}).get(p) != 'failed' for r, ps in lost for p in ps)}"
+    )
+    for r, ps in lost:
+        pq = r.get("part_quality", {})
+        lines.append(
+            f"  {r['kind']}-{r['seed']} ({r.get('quality', '-')}): "
+            + ", ".join(f"{p} {r['part_truth_offset_mm'][p]:.0f} mm ({pq.get(p, '-')})" for p in ps)
+        )
     return lines
+
+
+def lost_parts(row: dict[str, Any]) -> list[str]:
+    """Quality parts of a fitted case whose centroid is > ``LOST_PART_MM`` off the truth's."""
+    off = row.get("part_truth_offset_mm") or {}
+    return [k for k, v in off.items() if v > LOST_PART_MM]
 
 
 def main(argv: list[str] | None = None) -> int:

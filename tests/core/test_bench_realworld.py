@@ -32,3 +32,25 @@ def test_surface_metrics_zero_on_itself_and_shift_seen():
     assert 3.0 < m["scan_to_fit_median_mm"] <= 4.01
     assert 2.5 < m["fit_to_scan_mean_mm"] <= 4.01
     assert m["part_scan_to_fit_p95_mm"]["head"] <= 4.01
+
+
+def test_report_counts_lost_parts_and_good_verdicts_on_them():
+    from bench.realworld import LOST_PART_MM, lost_parts, report
+
+    def row(seed: int, quality: str, hand_off: float, hand_q: str) -> dict:
+        return {
+            "seed": seed, "kind": "raw", "family": "raw", "outcome": "fitted", "quality": quality,
+            "scan_to_fit_median_mm": 1.0, "scan_to_fit_p95_mm": 3.0, "fit_to_scan_mean_mm": 1.0,
+            "body_scan_to_fit_median_mm": 1.0, "body_scan_to_fit_p95_mm": 3.0, "corr_p95_mm": 20.0,
+            "corr_mean_mm": 10.0, "fit_wall_s": 1.0, "fit_cpu_s": 1.0,
+            "part_truth_offset_mm": {"head": 5.0, "hand_L": hand_off},
+            "part_quality": {"head": "good", "hand_L": hand_q},
+        }  # fmt: skip
+
+    rows = [row(0, "good", 10.0, "good"), row(1, "failed", 140.0, "failed"),
+            row(2, "good", LOST_PART_MM + 1, "good")]  # fmt: skip
+    assert lost_parts(rows[0]) == [] and lost_parts(rows[1]) == ["hand_L"]
+    text = "\n".join(report(rows, [], True))
+    assert "fits with a lost part (centroid > 50 mm off the truth's): 2/3" in text
+    assert "'good' verdicts with a lost part: 1; lost parts not 'failed': 1" in text
+    assert "raw-1 (failed): hand_L 140 mm (failed)" in text
