@@ -122,13 +122,19 @@ class Template:
         return tuple(str(n) for n in self._extra("joint_names"))
 
 
-@cache
-def load_template() -> Template:
-    """Load the committed template asset (cached; arrays are read-only)."""
-    with np.load(ASSET_DIR / "template.npz") as z:
+def load_asset(name: str) -> dict[str, np.ndarray]:
+    """The arrays of ``core/assets/<name>`` (an ``.npz``), read-only."""
+    with np.load(ASSET_DIR / name) as z:
         arrays = {k: z[k] for k in z.files}
     for a in arrays.values():
         a.setflags(write=False)
+    return arrays
+
+
+@cache
+def load_template() -> Template:
+    """Load the committed template asset (cached; arrays are read-only)."""
+    arrays = load_asset("template.npz")
     lm = json.loads((ASSET_DIR / "landmarks.json").read_text())
     V = arrays.pop("vertices")
     F = arrays.pop("faces")

@@ -59,15 +59,25 @@ class GlbLayout:
         self.bin_len += int(nbytes) + (-int(nbytes) % 4)
         return len(self.accessors) - 1, offset
 
+    def add_view(self, nbytes: int) -> tuple[int, int]:
+        """Reserve ``nbytes`` in a buffer view without accessor or target (e.g. an embedded
+        image). Returns (buffer view index, byte offset in the chunk)."""
+        offset = self.bin_len
+        self.views.append({"buffer": 0, "byteOffset": offset, "byteLength": int(nbytes)})
+        self.bin_len += int(nbytes) + (-int(nbytes) % 4)
+        return len(self.views) - 1, offset
+
     def document(
         self,
         mesh: dict,
         nodes: list[dict] | None = None,
         scene_nodes: list[int] | None = None,
         skins: list[dict] | None = None,
+        extra: dict | None = None,
     ) -> dict:
         """The glTF JSON document: ``mesh`` on node 0 (``nodes``: all nodes, default the mesh
-        node alone; ``scene_nodes``: the scene's roots, default ``[0]``)."""
+        node alone; ``scene_nodes``: the scene's roots, default ``[0]``; ``extra``: further
+        top-level entries such as ``materials``, ``textures``, ``images``, ``samplers``)."""
         gltf = {
             "asset": {"version": "2.0", "generator": "bodyspace"},
             "scene": 0,
@@ -80,6 +90,8 @@ class GlbLayout:
         }
         if skins:
             gltf["skins"] = skins
+        if extra:
+            gltf.update(extra)
         return gltf
 
     def frame(self, js: bytes) -> tuple[bytearray, int]:

@@ -238,6 +238,17 @@ def _skin_weights_f32(w: np.ndarray) -> np.ndarray:
     return w32
 
 
+def _float_accessor(a32: np.ndarray, type_: str) -> dict:
+    """The accessor (without view) of float32 rows ``a32`` with their ``min``/``max``."""
+    return {
+        "componentType": 5126,
+        "count": len(a32),
+        "type": type_,
+        "min": [float(v) for v in a32.min(axis=0)],
+        "max": [float(v) for v in a32.max(axis=0)],
+    }
+
+
 def write_glb(
     path_or_none: PathLike | None,
     V: np.ndarray,
@@ -247,6 +258,8 @@ def write_glb(
     colors: np.ndarray | None = None,
     targets: Sequence[GlbMorphTarget] = (),
     skin: GlbSkin | None = None,
+    texcoords: np.ndarray | None = None,
+    texture_png: bytes | None = None,
 ) -> bytes:
     """Encode (and optionally write) a binary glTF 2.0 file with one mesh and one primitive.
 
@@ -264,6 +277,11 @@ def write_glb(
         ``mesh.extras.targetNames``, their default weights are 0.
     skin : joints and per-vertex influences: the mesh node is skinned by a joint hierarchy
         (one node per joint, translations only) under the scene's root.
+    texcoords : (n, 2) texture coordinates (``TEXCOORD_0``, glTF convention: origin at the
+        image's top-left), given together with ``texture_png``.
+    texture_png : PNG bytes embedded as the material's ``baseColorTexture`` (a matte,
+        non-metallic, double-sided material; linear filtering, mipmaps, clamped edges). glTF
+        multiplies the texture by ``COLOR_0``, so give ``colors`` or a texture, not both.
 
     Returns
     -------
@@ -286,17 +304,7 @@ def write_glb(
         return index
 
     attrs = {
-        "POSITION": add(
-            pos,
-            ARRAY_BUFFER,
-            {
-                "componentType": 5126,
-                "count": n,
-                "type": "VEC3",
-                "min": [float(v) for v in pos.min(axis=0)],
-                "max": [float(v) for v in pos.max(axis=0)],
-            },
-        ),
+        "POSITION": add(pos, ARRAY_BUFFER, _float_accessor(pos, "VEC3")),
         "NORMAL": add(
             normalize(N.astype(np.float32).astype(np.float64)).astype(np.float32),
             ARRAY_BUFFER,
@@ -310,7 +318,39 @@ def write_glb(
             ARRAY_BUFFER,
             {"componentType": 5121, "normalized": True, "count": n, "type": "VEC4"},
         )
+    extra: dict = {}
+    if (texcoords is None) != (texture_png is None):
+        raise InputFormatError("give texcoords and texture_png together")
+    if texture_png is not None:
+        if colors is not None:
+            raise InputFormatError("give colors or a texture, not both (glTF multiplies them)")
+        uv = np.asarray(texcoords, dtype=np.float64)
+        if uv.shape != (n, 2) or not np.isfinite(uv).all():
+            raise InputFormatError(f"texcoords must be finite ({n}, 2), got {uv.shape}")
+        uv32 = uv.astype(np.float32)
+        attrs["TEXCOORD_0"] = add(uv32, ARRAY_BUFFER, _float_accessor(uv32, "VEC2"))
+        png = np.frombuffer(bytes(texture_png), np.uint8)
+        view, offset = layout.add_view(png.nbytes)
+        blocks.append((offset, png))
+        extra = {
+            "materials": [
+                {
+                    "name": "skin",
+                    "pbrMetallicRoughness": {
+                        "baseColorTexture": {"index": 0},
+                        "metallicFactor": 0.0,
+                        "roughnessFactor": 1.0,
+                    },
+                    "doubleSided": True,
+                }
+            ],
+            "textures": [{"sampler": 0, "source": 0}],
+            "samplers": [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}],
+            "images": [{"bufferView": view, "mimeType": "image/png"}],
+        }
     prim: dict = {"attributes": attrs}
+    if extra:
+        prim["material"] = 0
     if F is not None and len(F):
         idx, index = triangle_indices(F, n)
         prim["indices"] = add(idx, ELEMENT_ARRAY_BUFFER, index)
@@ -327,19 +367,7 @@ def write_glb(
                     f"morph target {tg.name!r}: delta_positions must be finite ({n}, 3)"
                 )
             d32 = dV.astype(np.float32)
-            ta = {
-                "POSITION": add(
-                    d32,
-                    ARRAY_BUFFER,
-                    {
-                        "componentType": 5126,
-                        "count": n,
-                        "type": "VEC3",
-                        "min": [float(v) for v in d32.min(axis=0)],
-                        "max": [float(v) for v in d32.max(axis=0)],
-                    },
-                )
-            }
+            ta = {"POSITION": add(d32, ARRAY_BUFFER, _float_accessor(d32, "VEC3"))}
             if tg.delta_normals is not None:
                 dN = np.asarray(tg.delta_normals, dtype=np.float64)
                 if dN.shape != (n, 3) or not np.isfinite(dN).all():
@@ -400,7 +428,7 @@ def write_glb(
         skins.append({"inverseBindMatrices": ibm_acc, "joints": list(range(first, first + J))})
         if len(roots) == 1:
             skins[0]["skeleton"] = roots[0]
-    doc = layout.document(mesh, nodes=nodes, scene_nodes=scene_nodes, skins=skins)
+    doc = layout.document(mesh, nodes=nodes, scene_nodes=scene_nodes, skins=skins, extra=extra)
     buf, o = layout.frame(json_bytes(doc))
     for offset, data in blocks:
         np.frombuffer(buf, np.uint8, data.nbytes, o + offset)[:] = data.reshape(-1).view(np.uint8)

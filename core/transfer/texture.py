@@ -1,0 +1,192 @@
+"""Texture baking on the template's one UV layout (Allen et al. 2003, section 4.6).
+
+Every body shares the template's vertices, so one UV layout serves them all: the MakeHuman
+base mesh's own (CC0; ``core/assets/uv_layout.npz``, made by ``core/assets/build_uv.py``). A
+body's per-vertex colours are *baked* into a texture image on that layout -- each UV triangle
+rasterised with its corners' colours interpolated barycentrically, then dilated a few pixels
+across the UV islands' borders so filtering never reads the empty background -- and the texture
+then moves from one body to any other unchanged.
+
+Vertex identity in a textured GLB: glTF gives a vertex one UV, so the body's 1 137 vertices on
+UV seams are written more than once. The GLB's vertex ``k`` is body vertex ``uv_vertex[k]``:
+the first 13 380 are the body's vertices in template order (``uv_vertex[k] == k``), the seam
+copies follow (:class:`UVLayout`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+from core.template import load_asset, load_template
+
+TEXTURE_SIZE = 1024  # pixels per side of a baked texture
+
+
+@dataclass(frozen=True)
+class UVLayout:
+    """The template's UV layout with seam vertices split (one UV per vertex, as glTF needs).
+
+    Attributes
+    ----------
+    uv : (K, 2) float32 texture coordinates, glTF convention (origin at the image's top-left).
+    vertex : (K,) int32 body vertex of each UV vertex; ``vertex[:13380] == arange(13380)``.
+    faces : (26756, 3) int32 the template's triangles over UV vertices
+        (``vertex[faces] == template.F``).
+    """
+
+    uv: np.ndarray
+    vertex: np.ndarray
+    faces: np.ndarray
+
+
+@cache
+def load_uv_layout() -> UVLayout:
+    """The committed UV layout (cached; arrays read-only)."""
+    arrays = load_asset("uv_layout.npz")
+    return UVLayout(uv=arrays["uv"], vertex=arrays["uv_vertex"], faces=arrays["uv_faces"])
+
+
+def _as_unit(colours: np.ndarray, n: int) -> np.ndarray:
+    C = np.asarray(colours)
+    if C.shape != (n, 3):
+        raise ValueError(f"colours must have shape ({n}, 3), got {C.shape}")
+    return C / 255.0 if C.dtype.kind in "ui" else np.clip(C.astype(np.float64), 0.0, 1.0)
+
+
+def _rasterise(P: np.ndarray, F: np.ndarray, C: np.ndarray, size: int):
+    """Barycentric fill of triangles ``F`` at pixel positions ``P`` (K, 2) with corner values
+    ``C`` (K, c): the (size, size, c) image and the (size, size) coverage mask."""
+    img = np.zeros((size * size, C.shape[1]))
+    covered = np.zeros(size * size, dtype=bool)
+    for s in range(0, len(F), 8192):  # bounded memory
+        T = P[F[s : s + 8192]]  # (t, 3, 2), pixel units; pixel (i, j) has centre (j+.5, i+.5)
+        lo = np.ceil(T.min(axis=1) - 0.5).astype(np.int64).clip(0, size - 1)
+        hi = np.floor(T.max(axis=1) - 0.5).astype(np.int64).clip(-1, size - 1)
+        nx, ny = (hi - lo + 1).clip(0).T
+        cnt = nx * ny
+        tri = np.repeat(np.arange(len(T)), cnt)
+        r = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        nxt = np.maximum(nx[tri], 1)
+        j = lo[tri, 0] + r % nxt
+        i = lo[tri, 1] + r // nxt
+        a, b, c = T[tri, 0], T[tri, 1], T[tri, 2]
+        p = np.stack([j + 0.5, i + 0.5], axis=1)
+
+        def cross(u, v):
+            return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+
+        D = cross(b - a, c - a)
+        ok = np.abs(D) > 1e-12
+        D = np.where(ok, D, 1.0)
+        lb = cross(p - a, c - a) / D
+        lc = cross(b - a, p - a) / D
+        la = 1.0 - lb - lc
+        inside = ok & (la >= -1e-9) & (lb >= -1e-9) & (lc >= -1e-9)
+        k = F[s : s + 8192][tri[inside]]
+        L = np.stack([la, lb, lc], axis=1)[inside]
+        pix = i[inside] * size + j[inside]
+        img[pix] = np.einsum("pc,pcd->pd", L, C[k])
+        covered[pix] = True
+    return img.reshape(size, size, -1), covered.reshape(size, size)
+
+
+def _dilate(img: np.ndarray, covered: np.ndarray, rings: int) -> np.ndarray:
+    """Grow the covered region by ``rings`` pixels (each new pixel the mean of its covered
+    8-neighbours), then give the rest of the background the mean covered colour."""
+    img, covered = img.copy(), covered.copy()
+    H, W = covered.shape
+    shifts = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
+    for _ in range(rings):
+        pad_v = np.pad(img * covered[..., None], ((1, 1), (1, 1), (0, 0)))
+        pad_c = np.pad(covered.astype(np.float64), 1)
+        acc = np.zeros_like(img)
+        n = np.zeros(covered.shape)
+        for di, dj in shifts:
+            acc += pad_v[1 + di : 1 + di + H, 1 + dj : 1 + dj + W]
+            n += pad_c[1 + di : 1 + di + H, 1 + dj : 1 + dj + W]
+        new = ~covered & (n > 0)
+        if not new.any():
+            break
+        img[new] = acc[new] / n[new, None]
+        covered |= new
+    img[~covered] = img[covered].mean(axis=0)
+    return img
+
+
+def bake_texture(
+    colours: np.ndarray,
+    *,
+    size: int = TEXTURE_SIZE,
+    dilate: int = 8,
+    layout: UVLayout | None = None,
+) -> np.ndarray:
+    """Bake a body's per-vertex colours into a texture on the template UV layout.
+
+    Parameters
+    ----------
+    colours : (13380, 3) RGB per body vertex, uint8 or floats in [0, 1] (template order).
+    size : texture width = height in pixels.
+    dilate : pixels grown across the UV islands' borders (seams stay seamless under bilinear
+        filtering and a few mipmap levels).
+    layout : default the committed :func:`load_uv_layout`.
+
+    Returns
+    -------
+    (size, size, 3) uint8 RGB image, glTF's orientation (row 0 at v = 0).
+    """
+    L = load_uv_layout() if layout is None else layout
+    if size < 16:
+        raise ValueError(f"size must be at least 16 pixels, got {size}")
+    C = _as_unit(colours, len(load_template().V))
+    P = L.uv.astype(np.float64) * size
+    img, covered = _rasterise(P, np.asarray(L.faces, dtype=np.int64), C[L.vertex], size)
+    img = _dilate(img, covered, dilate)
+    return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+
+
+def texture_colours(image: np.ndarray, *, layout: UVLayout | None = None) -> np.ndarray:
+    """Per-vertex colours of a texture on the template UV layout: (13380, 3) float64 in [0, 1],
+    the bilinear sample at each vertex's UV (averaged over a seam vertex's copies)."""
+    from core.io.images import sample_image
+
+    L = load_uv_layout() if layout is None else layout
+    n = len(load_template().V)
+    S = sample_image(image, L.uv)
+    out = np.zeros((n, S.shape[1]))
+    np.add.at(out, L.vertex, S)
+    return out / np.bincount(L.vertex, minlength=n)[:, None]
+
+
+def textured_glb(
+    path_or_none,
+    V: np.ndarray,
+    texture: np.ndarray | bytes,
+    *,
+    layout: UVLayout | None = None,
+) -> bytes:
+    """A body's GLB carrying a texture on the template UV layout (``TEXCOORD_0`` and the
+    material's ``baseColorTexture``), seam vertices split as :class:`UVLayout` says.
+
+    Parameters
+    ----------
+    path_or_none : output file, or None to only return the bytes.
+    V : (13380, 3) body vertices in template order, metres.
+    texture : (H, W, 3) uint8 image (e.g. :func:`bake_texture`) or PNG bytes.
+    """
+    from core.geometry import vertex_normals
+    from core.io.images import encode_png
+    from core.io.writers import write_glb
+
+    L = load_uv_layout() if layout is None else layout
+    tpl = load_template()
+    V = np.asarray(V, dtype=np.float64)
+    if V.shape != tpl.V.shape:
+        raise ValueError(f"V must have shape {tpl.V.shape}, got {V.shape}")
+    png = bytes(texture) if isinstance(texture, bytes | bytearray) else encode_png(texture)
+    N = vertex_normals(V, tpl.F)  # of the body, so seam copies share their normal
+    return write_glb(
+        path_or_none, V[L.vertex], L.faces, normals=N[L.vertex], texcoords=L.uv, texture_png=png
+    )
