@@ -227,7 +227,8 @@ def closed_mesh(
     Returns
     -------
     Vc (n, 3) float64 metres, Fc (m, 3) int64 outward-wound triangles (every edge in exactly two
-    faces), info (parameters drawn).
+    faces), info (parameters drawn; with a plate ``floor_shift_m``: the mesh was raised by this
+    so that the plate's underside is at y = 0 and the body stands on its top).
     """
     from skimage.measure import marching_cubes  # dev dependency (BSD-3)
 
@@ -330,8 +331,9 @@ def closed_mesh(
     Vc, Fc = Vc[used], remap[Fc]
     if mesh_volume(Vc, Fc) < 0:
         Fc = Fc[:, [0, 2, 1]]
-    if floor == "plate":
-        Vc[:, 1] -= Vc[:, 1].min()  # the plate's underside is the floor
+    if floor == "plate":  # the plate's underside is the floor: the body stands on its top
+        info["floor_shift_m"] = float(-Vc[:, 1].min())
+        Vc[:, 1] += info["floor_shift_m"]
     return Vc, Fc, info
 
 
@@ -587,6 +589,7 @@ def make_case(seed: int, kind: str | None = None) -> RealWorldCase:
         floor = "plate" if kind == "closed_plate" else "cut"
         X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=float(rng.uniform(0.010, 0.014)),
                                 hair=hair, floor=floor)  # fmt: skip
+        P = P + np.array([0.0, out.get("floor_shift_m", 0.0), 0.0])  # the truth stands on a plate
         normals = vertex_normals(X, F) if rng.random() < 0.5 else None
     elif kind == "dense":
         n = int(rng.uniform(1.0e6, 3.0e6))
