@@ -40,8 +40,19 @@ def decode_image(
     """
     from PIL import Image, UnidentifiedImageError
 
+    def too_large(w: int | str, h: int | str) -> InputFormatError:
+        return InputFormatError(
+            f"{name}: the image is {w} x {h} pixels, above the limit of {max_pixels:,} "
+            "pixels; downscale the texture (e.g. to 4096 x 4096)",
+            width=w,
+            height=h,
+            limit_pixels=max_pixels,
+        )
+
     try:
         im = Image.open(io.BytesIO(data), formats=_FORMATS)
+    except Image.DecompressionBombError:  # Pillow's own guard fired on the header first
+        raise too_large("?", "?") from None
     except UnidentifiedImageError:
         raise InputFormatError(
             f"{name}: not a PNG or JPEG image (first bytes {bytes(data[:8])!r}); textures must "
@@ -52,13 +63,7 @@ def decode_image(
     with im:
         w, h = im.size
         if w <= 0 or h <= 0 or w * h > max_pixels:
-            raise InputFormatError(
-                f"{name}: the image is {w} x {h} pixels, above the limit of {max_pixels:,} "
-                "pixels; downscale the texture (e.g. to 4096 x 4096)",
-                width=w,
-                height=h,
-                limit_pixels=max_pixels,
-            )
+            raise too_large(w, h)
         try:
             rgb = im.convert("RGB") if im.mode != "RGB" else im
             rgb.load()

@@ -24,24 +24,29 @@ Decisions
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import re
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from core.errors import InputFormatError
+from core.io.images import MAX_TEXTURE_PIXELS
 from core.scan import RawMesh
 
 Source = str | os.PathLike | bytes | bytearray | memoryview
 
-FORMATS = ("ply", "obj", "stl", "npz", "xyz", "pts")
+FORMATS = ("ply", "obj", "stl", "npz", "xyz", "pts", "glb", "zip")
 _EXT = {
     ".ply": "ply",
     ".obj": "obj",
+    ".glb": "glb",
+    ".zip": "zip",
     ".stl": "stl",
     ".npz": "npz",
     ".xyz": "xyz",
@@ -113,7 +118,8 @@ def _detect_format(
     if sniffed is None:
         raise InputFormatError(
             f"{what}: unrecognised file format (first bytes {head[:16]!r}); "
-            "supported formats are PLY, OBJ, STL, NPZ and XYZ/PTS point clouds",
+            "supported formats are PLY, OBJ (alone or zipped with its MTL and textures), GLB, "
+            "STL, NPZ and XYZ/PTS point clouds",
             first_bytes=repr(head[:16]),
         )
     return sniffed
@@ -123,7 +129,9 @@ def _sniff(head: bytes, size: int) -> str | None:
     if head.startswith(b"ply"):
         return "ply"
     if head.startswith(b"PK\x03\x04"):
-        return "npz"
+        return "npz"  # or a textured-OBJ bundle: told apart by its members (_zip_kind)
+    if head.startswith(b"glTF"):
+        return "glb"
     if len(head) >= 84:
         n = int(np.frombuffer(head, "<u4", 1, 80)[0])
         if 84 + 50 * n == size:
@@ -671,7 +679,17 @@ _OBJ_VN = re.compile(rb"^[ \t]*vn[ \t]+([^\r\n]*)", re.M)
 _OBJ_F = re.compile(rb"^[ \t]*f[ \t]+([^\r\n]*)", re.M)
 
 
-def _read_obj(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
+def _read_obj(
+    data: bytes,
+    what: str,
+    max_vertices: int | None,
+    max_faces: int | None,
+    files: Files | None = None,
+    strict: bool = False,
+    max_pixels: int = MAX_TEXTURE_PIXELS,
+) -> RawMesh:
+    """OBJ; with ``files`` (the MTL and images beside it) a ``map_Kd`` texture or ``Kd``
+    colour gives the vertex colours (``strict``: a named file that is missing is an error)."""
     v_lines = _OBJ_V.findall(data)
     f_lines = _OBJ_F.findall(data)
     _check_limits(len(v_lines), len(f_lines), max_vertices, max_faces, what)
@@ -751,7 +769,313 @@ def _read_obj(data: bytes, what: str, max_vertices: int | None, max_faces: int |
                         chk = normals[vi]
                         if not np.allclose(chk, vn[ni]) or len(np.unique(vi)) != nv:
                             normals = None
+        if files is not None and np.all((vi >= 0) & (vi < nv)):
+            tex = _obj_material_colours(data, block, ftok, vi, nv, files, strict, what, max_pixels)
+            colors = colors if tex is None else tex
         F = _fan(ftok, vi)
+    return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors), what)
+
+
+# --------------------------------------------------------------------------------------------
+# OBJ materials and textures (MTL + map_Kd images), OBJ bundles (ZIP) and GLB
+
+Files = Callable[[str], bytes | None]  # a file named by the OBJ/MTL -> its bytes, None if absent
+_OBJ_VT = re.compile(rb"^[ \t]*vt[ \t]+([^\r\n]*)", re.M)
+_OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]+([^\r\n]*)", re.M)
+_OBJ_MTLLIB = re.compile(rb"^[ \t]*mtllib[ \t]+([^\r\n]*)", re.M)
+MAX_SIDECAR_BYTES = 256 << 20  # one MTL or texture file
+MAX_BUNDLE_MEMBERS = 64
+MAX_BUNDLE_BYTES = 2 << 30  # inflated bytes read from one ZIP bundle
+
+
+def _corner_vt(data: bytes, block: bytes, ftok: np.ndarray, what: str) -> np.ndarray | None:
+    """0-based ``vt`` index of every face corner (-1 where a corner has none), or None when
+    the faces carry no ``v/vt`` corners (or mix layouts: then the texture is not used)."""
+    n = int(ftok.sum())
+    slashes = block.count(b"/")
+    for k, extra in ((1, rb"/[^\s/]*/"), (2, rb"/[^\s/]*/[^\s/]*/")):
+        if slashes != k * n or re.search(extra, block):
+            continue
+        vals = _parse_floats(
+            block.replace(b"//", b"/0/").replace(b"/", b" "), f"{what} (OBJ faces)"
+        )
+        if len(vals) != n * (k + 1):
+            return None
+        vt = vals.reshape(n, k + 1)[:, 1].astype(np.int64)
+        if np.any(vt < 0):  # relative to the vt lines so far
+            vt_pos = np.array([m.start() for m in _OBJ_VT.finditer(data)])
+            f_pos = np.array([m.start() for m in _OBJ_F.finditer(data)])
+            before = np.repeat(np.searchsorted(vt_pos, f_pos), ftok)
+            vt = np.where(vt < 0, before + vt + 1, vt)
+        return vt - 1
+    return None
+
+
+def _obj_vt(vt_lines: list[bytes], what: str) -> np.ndarray:
+    """(T, 2) ``u v`` of the ``vt`` lines (a missing ``v`` is 0, a ``w`` ignored)."""
+    ntok = _tokens_per_line(vt_lines)
+    w = int(ntok[0])
+    if w in (2, 3) and np.all(ntok == w):
+        return _parse_floats(b"\n".join(vt_lines), f"{what} (OBJ vt)").reshape(-1, w)[:, :2]
+    rows = [[*ln.split(), b"0", b"0"][:2] for ln in vt_lines]
+    return _parse_floats(b"\n".join(b" ".join(r) for r in rows), f"{what} (OBJ vt)").reshape(-1, 2)
+
+
+def _mtl_materials(text: bytes) -> dict[str, tuple[np.ndarray | None, str | None]]:
+    """MTL ``newmtl`` name -> (``Kd`` RGB in [0, 1] or None, ``map_Kd`` file name or None)."""
+    out: dict[str, tuple[np.ndarray | None, str | None]] = {}
+    name = None
+    for raw in text.decode("utf-8", "replace").splitlines():
+        parts = raw.split()
+        if not parts:
+            continue
+        key = parts[0]
+        if key == "newmtl" and len(parts) > 1:
+            name = raw.split(None, 1)[1].strip()
+            out[name] = (None, None)
+        elif name is None:
+            continue
+        elif key == "Kd" and len(parts) >= 4:
+            try:
+                kd = np.clip([float(x) for x in parts[1:4]], 0.0, 1.0)
+            except ValueError:
+                continue
+            out[name] = (kd, out[name][1])
+        elif key == "map_Kd" and len(parts) > 1:
+            # options (-s 1 1 1, -bm 2, ...) come first; the file name is the rest
+            fname = parts[-1] if parts[1].startswith("-") else raw.split(None, 1)[1].strip()
+            out[name] = (out[name][0], fname)
+    return out
+
+
+def _obj_material_colours(
+    data: bytes,
+    block: bytes,
+    ftok: np.ndarray,
+    vi: np.ndarray,
+    nv: int,
+    files: Files,
+    strict: bool,
+    what: str,
+    max_pixels: int,
+) -> np.ndarray | None:
+    """(nv, 3) uint8 vertex colours from the OBJ's materials, or None (no usable material).
+
+    Each face corner takes its material's ``map_Kd`` texture at the corner's ``vt`` (bilinear;
+    ``Kd`` is not multiplied in, as most viewers do) or, without a texture, its ``Kd``; a vertex
+    takes the mean over its corners (a scan's texture detail finer than its vertex spacing is
+    averaged away). Vertices with no coloured corner take the mean colour.
+    """
+    from core.io.images import decode_image, sample_image
+
+    libs = [m.strip().decode("utf-8", "replace") for m in _OBJ_MTLLIB.findall(data)]
+    if not libs:
+        return None
+    materials: dict[str, tuple[np.ndarray | None, str | None]] = {}
+    for lib in libs:
+        text = files(lib)
+        if text is None:
+            if strict:
+                raise InputFormatError(f"{what}: the material file {lib!r} named by the OBJ "
+                                       "is missing; add it to the archive")  # fmt: skip
+            continue
+        materials.update(_mtl_materials(text))
+    use = _OBJ_USEMTL.findall(data)
+    if not materials or not use:
+        return None
+    names = [u.strip().decode("utf-8", "replace") for u in use]
+    u_pos = np.array([m.start() for m in _OBJ_USEMTL.finditer(data)])
+    f_pos = np.array([m.start() for m in _OBJ_F.finditer(data)])
+    corner_mat = np.repeat(np.searchsorted(u_pos, f_pos) - 1, ftok)  # -1: before any usemtl
+    vt_lines = _OBJ_VT.findall(data)
+    corner_vt = _corner_vt(data, block, ftok, what) if vt_lines else None
+    uvs = None
+    if corner_vt is not None:
+        uvs = _obj_vt(vt_lines, what)
+        if not np.isfinite(uvs).all():
+            raise InputFormatError(f"{what}: OBJ texture coordinates must be finite")
+    acc = np.zeros((nv, 3))
+    cnt = np.zeros(nv)
+    budget = max_pixels
+    for m, mname in enumerate(names):
+        corners = np.flatnonzero(corner_mat == m)
+        if mname not in materials or not len(corners):
+            continue
+        kd, image = materials[mname]
+        rgb = None
+        if image is not None and uvs is not None:
+            img_bytes = files(image)
+            if img_bytes is None:
+                if strict:
+                    raise InputFormatError(
+                        f"{what}: the texture {image!r} named by material {mname!r} is "
+                        "missing; add it to the archive"
+                    )
+            else:
+                img = decode_image(img_bytes, name=f"{what}: texture {image!r}", max_pixels=budget)
+                budget -= img.shape[0] * img.shape[1]
+                t = corner_vt[corners]
+                ok = (t >= 0) & (t < len(uvs))
+                corners = corners[ok]
+                uv = uvs[t[ok]] * [1.0, -1.0] + [0.0, 1.0]  # OBJ v up -> glTF v down
+                rgb = sample_image(img, uv)
+        if rgb is None and kd is not None:
+            rgb = np.broadcast_to(kd, (len(corners), 3))
+        if rgb is None:
+            continue
+        v = vi[corners]
+        for c in range(3):
+            acc[:, c] += np.bincount(v, weights=rgb[:, c], minlength=nv)
+        cnt += np.bincount(v, minlength=nv)
+    if not cnt.any():
+        return None
+    has = cnt > 0
+    acc[has] /= cnt[has, None]
+    acc[~has] = acc[has].mean(axis=0)
+    return np.clip(np.round(acc * 255.0), 0, 255).astype(np.uint8)
+
+
+def _folder_files(folder: Path) -> Files:
+    """Files beside an OBJ on disk: looked up by base name in its folder only (never a path
+    named in the file, so an OBJ cannot read outside its folder)."""
+
+    def get(name: str) -> bytes | None:
+        base = Path(name.strip().strip('"').replace("\\", "/")).name
+        p = folder / base
+        if not base or not p.is_file():
+            return None
+        if p.stat().st_size > MAX_SIDECAR_BYTES:
+            raise InputFormatError(f"{base} is larger than {MAX_SIDECAR_BYTES:,} bytes")
+        return p.read_bytes()
+
+    return get
+
+
+def _zip_kind(data: bytes) -> str:
+    """``zip`` for an archive holding an OBJ (a textured-OBJ bundle), else ``npz``."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as z:
+            names = z.namelist()
+    except Exception:
+        return "npz"  # the NPZ reader explains what is wrong
+    return "zip" if any(n.lower().endswith(".obj") for n in names) else "npz"
+
+
+def _bundle(data: bytes, what: str) -> tuple[zipfile.ZipFile, zipfile.ZipInfo, Files]:
+    """The archive, its one OBJ member and a reader of the other members (by path or by base
+    name, case-insensitive), each inflated with its declared size as a hard cap."""
+    try:
+        z = zipfile.ZipFile(io.BytesIO(data))
+        infos = [i for i in z.infolist() if not i.is_dir()]
+    except Exception as e:
+        raise InputFormatError(f"{what}: not a valid ZIP archive ({type(e).__name__})") from None
+    if len(infos) > MAX_BUNDLE_MEMBERS:
+        raise InputFormatError(
+            f"{what}: the archive has {len(infos)} files; at most {MAX_BUNDLE_MEMBERS} (one OBJ, "
+            "its MTL and its textures)"
+        )
+    objs = [i for i in infos if i.filename.lower().endswith(".obj")]
+    if len(objs) != 1:
+        raise InputFormatError(
+            f"{what}: the archive must hold exactly one .obj file (with its .mtl and texture "
+            f"images), found {len(objs)}"
+        )
+    if sum(i.file_size for i in infos) > MAX_BUNDLE_BYTES:
+        raise InputFormatError(
+            f"{what}: the archive inflates to more than {MAX_BUNDLE_BYTES:,} bytes"
+        )
+    by_path = {i.filename.replace("\\", "/").lower(): i for i in infos}
+    by_base: dict[str, zipfile.ZipInfo] = {}
+    for i in infos:
+        by_base.setdefault(i.filename.replace("\\", "/").rsplit("/", 1)[-1].lower(), i)
+    folder = objs[0].filename.replace("\\", "/").rpartition("/")[0]
+
+    def get(name: str) -> bytes | None:
+        n = name.strip().strip('"').replace("\\", "/").lower()
+        info = by_path.get(f"{folder.lower()}/{n}" if folder else n) or by_path.get(n)
+        info = info or by_base.get(n.rsplit("/", 1)[-1])
+        if info is None:
+            return None
+        if info.file_size > MAX_SIDECAR_BYTES:
+            raise InputFormatError(f"{what}: {info.filename!r} is larger than "
+                                   f"{MAX_SIDECAR_BYTES:,} bytes")  # fmt: skip
+        return _member(z, info, what)
+
+    return z, objs[0], get
+
+
+def _member(z: zipfile.ZipFile, info: zipfile.ZipInfo, what: str) -> bytes:
+    """A member's bytes, never more than its declared size."""
+    try:
+        with z.open(info) as f:
+            out = f.read(info.file_size + 1)
+    except Exception as e:
+        raise InputFormatError(
+            f"{what}: cannot inflate {info.filename!r} ({type(e).__name__})"
+        ) from None
+    if len(out) != info.file_size:
+        raise InputFormatError(f"{what}: {info.filename!r} is not the size its header declares")
+    return out
+
+
+def _read_zip(
+    data: bytes,
+    what: str,
+    max_vertices: int | None,
+    max_faces: int | None,
+    max_pixels: int = MAX_TEXTURE_PIXELS,
+) -> RawMesh:
+    """A ZIP bundle: one OBJ with its MTL and texture images (every file it names must be in
+    the archive)."""
+    z, obj, files = _bundle(data, what)
+    with z:
+        text = _member(z, obj, what)
+        return _read_obj(
+            text, f"{what} ({obj.filename})", max_vertices, max_faces, files, True, max_pixels
+        )
+
+
+def _read_glb(
+    data: bytes,
+    what: str,
+    max_vertices: int | None,
+    max_faces: int | None,
+    max_pixels: int = MAX_TEXTURE_PIXELS,
+) -> RawMesh:
+    """GLB: the default scene's triangle/point primitives merged, in world coordinates;
+    colours from the base colour texture at ``TEXCOORD`` (times ``COLOR_0`` and the material's
+    factor, applied to the stored values), else ``COLOR_0``."""
+    from core.io.glb import read_glb_primitives
+    from core.io.images import decode_image, sample_image
+
+    prims = read_glb_primitives(data, what, max_vertices=max_vertices, max_faces=max_faces)
+    coloured = any(p.image is not None or p.colors is not None for p in prims)
+    Vs, Fs, Ns, Cs = [], [], [], []
+    off = 0
+    budget = max_pixels
+    images: dict[bytes, np.ndarray] = {}
+    for p in prims:
+        n = len(p.V)
+        Vs.append(p.V)
+        if p.F is not None:
+            Fs.append(p.F + off)
+        Ns.append(p.normals)
+        if coloured:
+            c = np.ones((n, 3)) if p.colors is None else p.colors
+            if p.image is not None:
+                if p.image not in images:
+                    images[p.image] = decode_image(p.image, name=f"{what}: base colour texture",
+                                                   max_pixels=budget)  # fmt: skip
+                    budget -= images[p.image].shape[0] * images[p.image].shape[1]
+                c = c * sample_image(images[p.image], p.uv)
+            Cs.append(c * p.factor)
+        off += n
+    V = np.concatenate(Vs)
+    F = np.concatenate(Fs) if Fs else None
+    normals = np.concatenate(Ns) if all(x is not None for x in Ns) else None
+    colors = None
+    if coloured:
+        colors = np.clip(np.round(np.concatenate(Cs) * 255.0), 0, 255).astype(np.uint8)
     return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors), what)
 
 
@@ -1101,6 +1425,8 @@ _READERS = {
     "npz": _read_npz,
     "xyz": _read_xyz,
     "pts": _read_xyz,
+    "glb": _read_glb,
+    "zip": _read_zip,
 }
 
 
@@ -1111,6 +1437,8 @@ def read_mesh(
     max_vertices: int = 5_000_000,
     max_faces: int = 10_000_000,
     name: str | None = None,
+    sidecar_files: bool = True,
+    max_texture_pixels: int = MAX_TEXTURE_PIXELS,
 ) -> RawMesh:
     """Read a scan mesh or point cloud in the file's units and axes.
 
@@ -1124,12 +1452,24 @@ def read_mesh(
         Limits checked before the data are parsed (faces after fan triangulation may be more).
     name : str, optional
         What error messages call the file (e.g. an upload's filename); default its path.
+    sidecar_files : bool
+        For an OBJ read from a path: read the MTL and texture images it names from its own
+        folder (by base name only). A service reading stored uploads passes False.
+    max_texture_pixels : int
+        Limit on the summed width x height of a scan's texture images (checked from their
+        headers before decoding).
 
     Returns
     -------
     RawMesh
         ``V`` (n, 3) float64, ``F`` (m, 3) int64 or None (point cloud), optional normals,
-        confidence in [0, 1] and colours.
+        confidence in [0, 1] and colours (per vertex; from a texture: sampled at the vertex's
+        UVs, see :func:`_obj_material_colours`).
+
+    Textured scans: an OBJ with ``mtllib``/``usemtl``, ``vt`` and ``v/vt`` faces whose material
+    has a ``map_Kd`` image (PNG/JPEG) -- beside the OBJ on disk, or zipped with it (format
+    ``zip``: one ``.obj``, its ``.mtl`` and images) -- or a GLB whose material has a
+    ``baseColorTexture`` (embedded PNG/JPEG) over ``TEXCOORD_0``.
 
     Raises
     ------
@@ -1146,9 +1486,19 @@ def read_mesh(
         _, elements, _ = _ply_header(head, what)
         _check_limits(*_ply_counts(elements), max_vertices, max_faces, what)
     data = _read_all(source)
+    if f == "npz" and fmt is None:
+        f = _zip_kind(data)
+    reader = _READERS[f]
+    if f == "obj":
+        folder = None
+        if sidecar_files and not isinstance(source, bytes | bytearray | memoryview):
+            folder = _folder_files(Path(source).resolve().parent)
+        reader = functools.partial(_read_obj, files=folder, max_pixels=max_texture_pixels)
+    elif f in ("zip", "glb"):
+        reader = functools.partial(reader, max_pixels=max_texture_pixels)
     try:
         with np.errstate(all="ignore"):
-            return _READERS[f](data, what, max_vertices, max_faces)
+            return reader(data, what, max_vertices, max_faces)
     except InputFormatError:
         raise
     except Exception as e:  # last resort: corrupt data must never crash the caller
@@ -1190,6 +1540,8 @@ def inspect_mesh_header(
     if size == 0:
         raise InputFormatError(f"{what} is empty (0 bytes); upload a non-empty scan file")
     f = _detect_format(path_or_bytes, head, size, fmt, what)
+    if f == "npz" and fmt is None:
+        f = _zip_kind(_read_all(path_or_bytes))
     out: dict[str, Any]
     if f == "ply":
         pfmt, elements, off = _ply_header(head, what)
@@ -1255,10 +1607,21 @@ def inspect_mesh_header(
             has_normals=_npz_pick(shapes, "normals") is not None,
             has_confidence="confidence" in shapes,
         )
-    elif f == "obj":
-        data = _read_all(path_or_bytes)
+    elif f == "glb":
+        from core.io.glb import glb_counts
+
+        nv, nf, normals = glb_counts(_read_all(path_or_bytes), what)
         out = dict(
-            format="obj",
+            format="glb", n_vertices=nv, n_faces=nf, has_normals=normals, has_confidence=False
+        )
+    elif f in ("obj", "zip"):
+        data = _read_all(path_or_bytes)
+        if f == "zip":
+            z, obj, _ = _bundle(data, what)
+            with z:
+                data = _member(z, obj, what)
+        out = dict(
+            format=f,
             n_vertices=len(_OBJ_V.findall(data)),
             n_faces=len(_OBJ_F.findall(data)),
             has_normals=bool(_OBJ_VN.search(data)),
