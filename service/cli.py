@@ -223,8 +223,20 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
     from core.io.writers import atomic_write
 
     t0 = time.perf_counter()
+    colors = getattr(result, "colors", None)
+    texture = None
     for out in outs:
-        write_mesh(out, result.vertices, result.faces, colors=getattr(result, "colors", None))
+        if colors is not None and out.suffix.lower() in (".glb", ".obj"):
+            # baked on the template UV layout: a textured GLB, or OBJ + MTL + PNG
+            from core.transfer.texture import bake_texture, textured_glb, write_textured_obj
+
+            texture = bake_texture(colors) if texture is None else texture
+            if out.suffix.lower() == ".glb":
+                textured_glb(out, result.vertices, texture)
+            else:
+                write_textured_obj(out, result.vertices, texture)
+            continue
+        write_mesh(out, result.vertices, result.faces, colors=colors)
     info["outputs"] = [str(p) for p in outs]
     info["timing_s"]["write"] = time.perf_counter() - t0
     info["timing_s"]["total"] = sum(v for v in info["timing_s"].values())

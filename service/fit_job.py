@@ -38,6 +38,7 @@ RESULT_FORMATS = {
     "obj": "text/plain; charset=utf-8",
     "json": "application/json",
 }
+TEXTURE_FORMAT = ("png", "image/png")  # fits of coloured scans only: the baked texture
 
 
 class TransientError(Exception):
@@ -161,7 +162,7 @@ def _load_inputs(
     with store.local_copy(scan.blob_key) as path:
         raw = read_mesh(
             path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
-            name=scan.filename,
+            name=scan.filename, sidecar_files=False,
         )  # fmt: skip
     markers_file = fit.markers if fit.markers is not None else scan.markers
     if not use_markers:
@@ -256,7 +257,9 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
     (database/storage unreachable) are raised for the caller to retry.
     """
     from core.io import write_glb, write_obj, write_ply
+    from core.io.images import encode_png
     from core.registration.fit import FitCancelled
+    from core.transfer.texture import TEXTURE_SIZE, bake_texture, textured_glb
 
     settings = settings or get_settings()
     if not _claim(fit_id, task_id, settings):
@@ -320,10 +323,19 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             result = _run_core(row, scan, store, settings, on_progress)
             V, F = result.vertices, result.faces
             report = json_ready(result.report.to_dict())
-            keys = {f: result_key(row.tenant_id, fit_id, f) for f in RESULT_FORMATS}
-            files = {f: store.temp_file(f".{f}") for f in RESULT_FORMATS}
+            formats = dict(RESULT_FORMATS)
             colors = getattr(result, "colors", None)  # only fits of coloured scans
-            write_glb(files["glb"], V, F, colors=colors)
+            if colors is not None:
+                formats[TEXTURE_FORMAT[0]] = TEXTURE_FORMAT[1]
+            keys = {f: result_key(row.tenant_id, fit_id, f) for f in formats}
+            files = {f: store.temp_file(f".{f}") for f in formats}
+            if colors is None:
+                write_glb(files["glb"], V, F)
+            else:  # the colours baked on the template UV layout: a textured GLB and its PNG
+                png = encode_png(bake_texture(colors))
+                textured_glb(files["glb"], V, png)
+                files["png"].write_bytes(png)
+                report["texture"] = {"format": "png", "size_px": TEXTURE_SIZE, "uv": "template"}
             write_ply(files["ply"], V, F, colors=colors)
             write_obj(files["obj"], V, F)
             files["json"].write_text(json.dumps(report, indent=1), encoding="utf-8")
@@ -333,11 +345,11 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
                     tenant_id=row.tenant_id,
                     fit_id=fit_id,
                     kind=f"result.{fmt}",
-                    content_type=RESULT_FORMATS[fmt],
+                    content_type=formats[fmt],
                     size_bytes=files[fmt].stat().st_size,
                     sha256=sha256_file(files[fmt]),
                 )
-                for fmt in RESULT_FORMATS
+                for fmt in formats
             ]
             try:
                 for fmt, tmp in files.items():

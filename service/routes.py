@@ -28,7 +28,7 @@ from service.deps import (
     require_json,
 )
 from service.errors import ApiError, clip
-from service.fit_job import RESULT_FORMATS, result_key
+from service.fit_job import RESULT_FORMATS, TEXTURE_FORMAT, result_key
 from service.models import Blob, Fit, Scan, Tenant, new_id, utcnow
 from service.privacy import scrub_deleted
 from service.schemas import (
@@ -59,7 +59,8 @@ router = APIRouter(prefix="/v1", responses=ERRORS)
 UNITS = ("auto", "m", "cm", "mm")
 UPS = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 SCAN_EXT = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".npz": "npz", ".xyz": "xyz",
-            ".pts": "pts", ".txt": "xyz", ".asc": "xyz"}  # fmt: skip
+            ".pts": "pts", ".txt": "xyz", ".asc": "xyz", ".glb": "glb",
+            ".zip": "zip"}  # fmt: skip
 
 
 @lru_cache(maxsize=1)
@@ -141,7 +142,11 @@ def _fit_out(f: Fit) -> FitOut:
         ),
         error=f.error,  # type: ignore[arg-type]
         attempts=f.attempts,
-        result_formats=list(RESULT_FORMATS) if f.state == "succeeded" else [],
+        result_formats=(
+            [*RESULT_FORMATS, *(["png"] if (f.report or {}).get("texture") else [])]
+            if f.state == "succeeded"
+            else []
+        ),
         quality=(f.report or {}).get("quality") if f.state == "succeeded" else None,
     )
 
@@ -180,7 +185,7 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
     if scan.size <= settings.full_validation_max_bytes:
         raw = read_mesh(
             scan.path, head["format"], max_vertices=settings.max_vertices,
-            max_faces=settings.max_faces, name=scan.filename,
+            max_faces=settings.max_faces, name=scan.filename, sidecar_files=False,
         )  # fmt: skip
         detect_frame(raw.V, units=units, up=up, markers=pts)
     return {"head": head, "units": units, "up": up, "markers": markers}
@@ -198,7 +203,9 @@ SCAN_BODY = {
                     "required": ["scan"],
                     "properties": {
                         "scan": {"type": "string", "format": "binary",
-                                 "description": "PLY, OBJ, STL, NPZ or XYZ scan"},
+                                 "description": "PLY, OBJ, GLB (an embedded base colour "
+                                 "texture is read), ZIP (one OBJ with its MTL and PNG/JPEG "
+                                 "textures), STL, NPZ or XYZ scan"},
                         "markers": {"type": "string", "format": "binary",
                                     "description": "CSV name,x,y,z or JSON {name: [x,y,z]}"},
                         "units": {"type": "string", "enum": list(UNITS), "default": "auto"},
@@ -483,7 +490,7 @@ def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> 
     with store.local_copy(scan.blob_key) as path:
         raw = read_mesh(
             path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
-            name=scan.filename,
+            name=scan.filename, sidecar_files=False,
         )  # fmt: skip
     frame = detect_frame(raw.V, units=scan.units, up=scan.up)
     how = {k: "as uploaded" if v != "auto" else "detected" for k, v in
@@ -557,7 +564,7 @@ def delete_fit(
     responses={
         200: {
             "description": "the fitted body (template vertex order, metres, +Y up) or the report",
-            "content": {t.split(";")[0]: {} for t in RESULT_FORMATS.values()},
+            "content": {t.split(";")[0]: {} for t in (*RESULT_FORMATS.values(), TEXTURE_FORMAT[1])},
         },
         409: {"model": ErrorResponse, "description": "the fit has not succeeded"},
     },
@@ -568,19 +575,25 @@ def get_fit_result(
     tenant: TenantId,
     session: SessionDep,
     store: StoreDep,
-    format: Literal["glb", "ply", "obj", "json"] = "glb",
+    format: Literal["glb", "ply", "obj", "json", "png"] = "glb",
 ) -> Response:
-    """Download a succeeded fit as GLB, PLY, OBJ or its JSON report."""
+    """Download a succeeded fit as GLB, PLY, OBJ or its JSON report; ``png``: the texture
+    baked on the template UV layout (fits of coloured or textured scans only; their GLB
+    carries it as its base colour texture)."""
     fit = _own(session, Fit, fit_id, tenant, "fit")
     if fit.state != "succeeded":
         raise ApiError("fit_not_ready", f"fit {fit_id} is {fit.state}", state=fit.state)
+    if format == "png" and not (fit.report or {}).get("texture"):
+        raise ApiError(
+            "not_found", f"fit {fit_id} has no texture: its scan had no colours", format="png"
+        )
     key = result_key(tenant, fit_id, format)
     size = store.size(key)
     if size is None:
         log.error("result %s of %s is missing from storage", key, fit_id)
         raise ApiError("not_found", f"the {format} result of fit {fit_id} is missing from storage")
     name = f"{fit_id}.{format}" if format != "json" else f"{fit_id}.report.json"
-    media = RESULT_FORMATS[format].split(";")[0]
+    media = dict([TEXTURE_FORMAT], **RESULT_FORMATS)[format].split(";")[0]
     path = store.local_path(key)
     if path is not None:
         return FileResponse(path, media_type=media, filename=name)

@@ -164,25 +164,48 @@ def write_ply(
 
 
 def write_obj(
-    path: PathLike, V: np.ndarray, F: np.ndarray | None, *, normals: np.ndarray | None = None
+    path: PathLike,
+    V: np.ndarray,
+    F: np.ndarray | None,
+    *,
+    normals: np.ndarray | None = None,
+    uv: np.ndarray | None = None,
+    FT: np.ndarray | None = None,
+    mtllib: str | None = None,
+    material: str = "skin",
 ) -> None:
-    """Write a Wavefront OBJ (``v``, optional ``vn``, ``f`` with 1-based indices).
+    """Write a Wavefront OBJ (``v``, optional ``vn``/``vt``, ``f`` with 1-based indices).
 
     Parameters
     ----------
     path : output file. V : (n, 3) vertices. F : (m, 3) triangles or None.
     normals : (n, 3) optional per-vertex normals (faces then use ``v//vn``).
+    uv, FT : (k, 2) texture coordinates in glTF's convention (written as OBJ ``vt``, v up) and
+        (m, 3) their indices per face corner (faces then use ``v/vt``); not with ``normals``.
+    mtllib, material : the material library and the material the faces use (``usemtl``).
     """
     V, F, normals, _, _ = _check(V, F, normals)
     n = len(V)
     out = ["# bodyspace\n"]
+    if mtllib is not None:
+        out.append(f"mtllib {mtllib}\n")
     if n:
         out.append(("v %.17g %.17g %.17g\n" * n) % tuple(V.ravel()))
     if normals is not None and n:
         out.append(("vn %.9g %.9g %.9g\n" * n) % tuple(normalize(normals).ravel()))
+    if uv is not None:
+        if normals is not None or F is None or FT is None or np.shape(FT) != F.shape:
+            raise InputFormatError("uv needs F and FT of the same shape, and no normals")
+        vt = np.asarray(uv, dtype=np.float64) * [1.0, -1.0] + [0.0, 1.0]  # OBJ: v up
+        out.append(("vt %.9g %.9g\n" * len(vt)) % tuple(vt.ravel()))
+    if mtllib is not None:
+        out.append(f"usemtl {material}\n")
     if F is not None and len(F):
         F1 = F + 1
-        if normals is not None:
+        if uv is not None:
+            corners = np.stack([F1, np.asarray(FT, dtype=np.int64) + 1], axis=2).reshape(-1)
+            out.append(("f %d/%d %d/%d %d/%d\n" * len(F)) % tuple(corners))
+        elif normals is not None:
             out.append(("f %d//%d %d//%d %d//%d\n" * len(F)) % tuple(np.repeat(F1, 2, 1).ravel()))
         else:
             out.append(("f %d %d %d\n" * len(F)) % tuple(F1.ravel()))

@@ -190,3 +190,28 @@ def textured_glb(
     return write_glb(
         path_or_none, V[L.vertex], L.faces, normals=N[L.vertex], texcoords=L.uv, texture_png=png
     )
+
+
+def write_textured_obj(path, V: np.ndarray, texture: np.ndarray | bytes) -> None:
+    """Write a body as OBJ with the texture on the template UV layout: ``path`` (``.obj``,
+    the body's 13 380 vertices in template order, ``vt`` per face corner), the material
+    library ``<stem>.mtl`` (``map_Kd <stem>.png``) and the image ``<stem>.png`` beside it.
+
+    Parameters
+    ----------
+    path : the ``.obj`` file. V : (13380, 3) body vertices in template order, metres.
+    texture : (H, W, 3) uint8 image (e.g. :func:`bake_texture`) or PNG bytes.
+    """
+    from pathlib import Path
+
+    from core.io.images import encode_png
+    from core.io.writers import atomic_write, write_obj
+
+    path = Path(path)
+    L = load_uv_layout()
+    tpl = load_template()
+    png = bytes(texture) if isinstance(texture, bytes | bytearray) else encode_png(texture)
+    mtl = f"newmtl skin\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd {path.stem}.png\n"
+    atomic_write(path.with_suffix(".png"), png)
+    atomic_write(path.with_suffix(".mtl"), mtl.encode("utf-8"))
+    write_obj(path, V, tpl.F, uv=L.uv, FT=L.faces, mtllib=f"{path.stem}.mtl")

@@ -94,8 +94,9 @@ def test_rig_and_pose(tmp_path):
 
 
 def test_fit_of_a_coloured_scan_is_coloured(tmp_path):
-    """``bodyspace fit`` of a coloured PLY: COLOR_0 in the GLB (validator-clean) and colours
-    in the PLY, close to the paint (the core test bounds the error; here: the plumbing)."""
+    """``bodyspace fit`` of a coloured PLY: the colours baked into a texture on the template UV
+    layout in the GLB (validator-clean) and beside the OBJ (MTL + PNG), colours in the PLY,
+    close to the paint (the core test bounds the error; here: the plumbing)."""
     from core.io import write_markers_csv
     from core.synth import ScanConfig, simulate_scan
     from tests.core.test_transfer_colour import paint
@@ -107,8 +108,8 @@ def test_fit_of_a_coloured_scan_is_coloured(tmp_path):
     sim = simulate_scan(body.V, tpl.F, rng, config=ScanConfig.small(), colors=C)
     write_ply(tmp_path / "scan.ply", sim.V_scan, sim.F_scan, colors=sim.colors)
     write_markers_csv(tmp_path / "m.csv", sim.markers)
-    glb, ply = tmp_path / "fit.glb", tmp_path / "fit.ply"
-    for out in (glb, ply):
+    glb, ply, obj = tmp_path / "fit.glb", tmp_path / "fit.ply", tmp_path / "fit.obj"
+    for out in (glb, ply, obj):
         r = run_cli(
             "fit", tmp_path / "scan.ply", "--markers", tmp_path / "m.csv", "--fast", "--quiet",
             "--out", out,
@@ -118,8 +119,21 @@ def test_fit_of_a_coloured_scan_is_coloured(tmp_path):
     assert report["errors"] == 0 and report["warnings"] == 0, report
     doc, accessor = glb_parts(glb.read_bytes())
     attrs = doc["meshes"][0]["primitives"][0]["attributes"]
-    rgba = accessor(attrs["COLOR_0"]).astype(np.float64) / 255.0
-    assert np.abs(rgba[:, :3] - C).mean() / 0.8 < 0.05
+    assert "COLOR_0" not in attrs and doc["materials"][0]["pbrMetallicRoughness"]
+    from core.io.images import decode_image, sample_image
+    from core.transfer.texture import load_uv_layout
+
+    uv = accessor(attrs["TEXCOORD_0"])
+    np.testing.assert_array_equal(uv, load_uv_layout().uv)
+    png = (tmp_path / "fit.png").read_bytes()  # the OBJ's texture: the same image
+    rgb = sample_image(decode_image(png), uv[: len(tpl.V)])
+    assert np.abs(rgb - C).mean() / 0.8 < 0.05
     m = read_mesh(ply)
     assert m.colors is not None
-    np.testing.assert_allclose(m.colors / 255.0, rgba[:, :3], atol=1 / 255 + 1e-9)
+    d = np.abs(m.colors / 255.0 - rgb)
+    assert d.mean() < 0.005, d.mean()  # baking at 1024 px: tiny UV triangles blend a little
+    assert "map_Kd fit.png" in (tmp_path / "fit.mtl").read_text()
+    o = read_mesh(obj)  # OBJ + MTL + PNG read back: the vertices and their colours
+    np.testing.assert_allclose(o.V, m.V, atol=1e-9)
+    do = np.abs(o.colors.astype(int) - m.colors.astype(int))
+    assert do.mean() < 2, do.mean()

@@ -1,15 +1,28 @@
 """A coloured scan over HTTP against a real ``bodyspace serve``: the upload keeps its colours,
-the fit's GLB has ``COLOR_0`` (validator-clean) and its PLY colours, and a body made from the fit
--- and its pose -- carry them (GLB and JSON)."""
+the fit's GLB carries them baked into a texture on the template UV layout (validator-clean; the
+PNG also downloadable) and its PLY per-vertex colours, and a body made from the fit -- and its
+pose -- carry them as ``COLOR_0`` (GLB and JSON). A textured scan uploaded as a ZIP bundle
+(OBJ + MTL + PNG) or as a GLB is accepted and read with its colours; a texture bomb is a 422."""
 
 from __future__ import annotations
+
+import json
+import struct
 
 import numpy as np
 
 from core.io import read_mesh, write_markers_csv, write_ply
+from core.io.images import decode_image, sample_image
 from core.synth import ScanConfig, random_body, simulate_scan
 from core.template import load_template
+from core.transfer.texture import (
+    bake_texture,
+    load_uv_layout,
+    textured_glb,
+    write_textured_obj,
+)
 from service.testing import glb_parts, validate_glb, wait_state
+from tests.core.test_io_textured import _png_header_only, _zip
 from tests.core.test_transfer_colour import paint
 
 JSON = {"Accept": "application/json"}
@@ -40,16 +53,24 @@ def test_coloured_scan_fit_and_body(client, tmp_path, gltf_validator):
     fit_id = r.json()["id"]
     assert wait_state(client, fit_id)["state"] == "succeeded"
 
+    assert client.get(f"/v1/fits/{fit_id}").json()["result_formats"][-1] == "png"
     r = client.get(f"/v1/fits/{fit_id}/result", params={"format": "glb"})
     assert r.status_code == 200
     (tmp_path / "fit.glb").write_bytes(r.content)
     report = validate_glb(tmp_path / "fit.glb")
     assert report["errors"] == 0 and report["warnings"] == 0, report
-    rgb = _colour(r.content)
-    assert np.abs(rgb / 255.0 - C).mean() / 0.8 < 0.05
+    doc, accessor = glb_parts(r.content)
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    uv = accessor(attrs["TEXCOORD_0"])
+    np.testing.assert_array_equal(uv, load_uv_layout().uv)
+    png = client.get(f"/v1/fits/{fit_id}/result", params={"format": "png"})
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    baked = sample_image(decode_image(png.content), uv[: len(tpl.V)])
+    assert np.abs(baked - C).mean() / 0.8 < 0.05
     r = client.get(f"/v1/fits/{fit_id}/result", params={"format": "ply"})
     (tmp_path / "fit.ply").write_bytes(r.content)
-    np.testing.assert_array_equal(read_mesh(tmp_path / "fit.ply").colors, rgb)
+    rgb = read_mesh(tmp_path / "fit.ply").colors
+    assert np.abs(rgb / 255.0 - baked).mean() < 0.005  # the texture is the PLY's colours baked
 
     r = client.post("/v1/bodies", json={"fit_id": fit_id, "sex": "female"})
     assert r.status_code == 201, r.text
@@ -67,3 +88,41 @@ def test_coloured_scan_fit_and_body(client, tmp_path, gltf_validator):
     # an uncoloured body has no colours
     other = client.post("/v1/bodies", json={"sex": "male", "seed": 1}).json()["id"]
     assert "colors" not in client.get(f"/v1/bodies/{other}", headers=JSON).json()
+
+
+def _upload(client, name: str, data: bytes):
+    return client.post("/v1/scans", files={"scan": (name, data, "application/octet-stream")})
+
+
+def test_textured_uploads(client, tmp_path):
+    """A ZIP bundle (OBJ + MTL + PNG) and a GLB with an embedded texture are accepted as scans
+    (the worker reads them with their colours: see the core tests); a bundle whose texture
+    declares 2.5 G pixels, one missing its texture, and a GLB needing Draco are refused (422)."""
+    tpl = load_template()
+    C = paint(tpl.V)
+    img = bake_texture(C, size=256)
+    L = load_uv_layout()
+    write_textured_obj(tmp_path / "body.obj", tpl.V, img)
+    files = {n: (tmp_path / n).read_bytes() for n in ("body.obj", "body.mtl", "body.png")}
+    r = _upload(client, "body.zip", _zip(files))
+    assert r.status_code == 201, r.text
+    assert r.json()["format"] == "zip" and r.json()["n_vertices"] == len(tpl.V)
+    glb = textured_glb(None, tpl.V, img)
+    r = _upload(client, "body.glb", glb)
+    assert r.status_code == 201, r.text
+    assert r.json()["format"] == "glb" and r.json()["n_vertices"] == len(L.uv)
+    bomb = {**files, "body.png": _png_header_only(50_000, 50_000)}
+    r = _upload(client, "bomb.zip", _zip(bomb))
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["code"] == "invalid_file" and "limit" in r.json()["error"]["message"]
+    r = _upload(client, "partial.zip", _zip({"body.obj": files["body.obj"]}))
+    assert r.status_code == 422 and "body.mtl" in r.json()["error"]["message"], r.text
+    doc, _ = glb_parts(glb)
+    doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    jlen = struct.unpack_from("<I", glb, 12)[0]
+    rest = glb[20 + jlen :]
+    head = struct.pack("<IIIII", 0x46546C67, 2, 20 + len(js) + len(rest), len(js), 0x4E4F534A)
+    r = _upload(client, "draco.glb", head + js + rest)
+    assert r.status_code == 422 and "KHR_draco" in r.json()["error"]["message"], r.text

@@ -56,6 +56,8 @@ def test_measurements_fit_recovers_known_body(client, client_b):
     done = wait_state(client, fit["id"])
     assert done["state"] == "succeeded", done
     assert done["result_formats"] == ["glb", "ply", "obj", "json"]
+    t = client.get(f"/v1/fits/{fit['id']}/result", params={"format": "png"})  # no colours
+    assert t.status_code == 404 and "no texture" in t.json()["error"]["message"], t.text
     g = client.get(f"/v1/fits/{fit['id']}/result", params={"format": "glb"})
     assert g.status_code == 200 and g.headers["content-type"].startswith("model/gltf-binary")
     e = np.linalg.norm(glb_vertices(g.content).astype(np.float64) - V, axis=1) * 1000
