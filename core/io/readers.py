@@ -786,6 +786,7 @@ _OBJ_MTLLIB = re.compile(rb"^[ \t]*mtllib[ \t]+([^\r\n]*)", re.M)
 MAX_SIDECAR_BYTES = 256 << 20  # one MTL or texture file
 MAX_BUNDLE_MEMBERS = 64
 MAX_BUNDLE_BYTES = 2 << 30  # inflated bytes read from one ZIP bundle
+MAX_BUNDLE_RATIO = 20  # ... and at most this many times the archive's own size (zip bombs)
 
 
 def _corner_vt(data: bytes, block: bytes, ftok: np.ndarray, what: str) -> np.ndarray | None:
@@ -980,9 +981,15 @@ def _bundle(data: bytes, what: str) -> tuple[zipfile.ZipFile, zipfile.ZipInfo, F
             f"{what}: the archive must hold exactly one .obj file (with its .mtl and texture "
             f"images), found {len(objs)}"
         )
-    if sum(i.file_size for i in infos) > MAX_BUNDLE_BYTES:
+    inflated = sum(i.file_size for i in infos)
+    limit = min(MAX_BUNDLE_BYTES, MAX_BUNDLE_RATIO * len(data))
+    if inflated > limit:
         raise InputFormatError(
-            f"{what}: the archive inflates to more than {MAX_BUNDLE_BYTES:,} bytes"
+            f"{what}: the archive declares {inflated:,} bytes inflated, more than {limit:,} "
+            f"({MAX_BUNDLE_RATIO}x its size, at most {MAX_BUNDLE_BYTES:,}); a textured scan's "
+            "OBJ, MTL and images do not compress that much",
+            inflated_bytes=inflated,
+            limit_bytes=limit,
         )
     by_path = {i.filename.replace("\\", "/").lower(): i for i in infos}
     by_base: dict[str, zipfile.ZipInfo] = {}

@@ -102,6 +102,11 @@ def test_obj_bundle_zip(painted_template, tmp_path):
         read_mesh(_zip({"scan.obj": obj}), "zip")
     with pytest.raises(InputFormatError, match=r"exactly one \.obj"):
         read_mesh(_zip({"a.obj": obj, "b.obj": obj}), "zip")
+    # a bundle inflating to far more than its size (a zip bomb) is refused before inflating
+    bomb = _zip({"scan.obj": obj, "scan.mtl": MTL, "pad.txt": b"\0" * (64 << 20)})
+    assert len(bomb) < 2 << 20
+    with pytest.raises(InputFormatError, match="inflated"):
+        read_mesh(bomb, "zip")
 
 
 def test_kd_colours_without_texture(tmp_path):
