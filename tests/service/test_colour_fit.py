@@ -95,8 +95,8 @@ def _upload(client, name: str, data: bytes):
 
 
 def test_textured_uploads(client, tmp_path):
-    """A ZIP bundle (OBJ + MTL + PNG) and a GLB with an embedded texture are accepted as scans
-    (the worker reads them with their colours: see the core tests); a bundle whose texture
+    """A ZIP bundle (OBJ + MTL + PNG) is accepted as a scan and its fit's GLB and PNG carry the
+    texture's colours; a GLB with an embedded texture is accepted; a bundle whose texture
     declares 2.5 G pixels, one missing its texture, and a GLB needing Draco are refused (422)."""
     tpl = load_template()
     C = paint(tpl.V)
@@ -104,9 +104,29 @@ def test_textured_uploads(client, tmp_path):
     L = load_uv_layout()
     write_textured_obj(tmp_path / "body.obj", tpl.V, img)
     files = {n: (tmp_path / n).read_bytes() for n in ("body.obj", "body.mtl", "body.png")}
-    r = _upload(client, "body.zip", _zip(files))
+    markers = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
+    write_markers_csv(tmp_path / "m.csv", markers)
+    r = client.post(
+        "/v1/scans",
+        files={
+            "scan": ("body.zip", _zip(files), "application/zip"),
+            "markers": ("m.csv", (tmp_path / "m.csv").read_bytes(), "text/csv"),
+        },
+    )
     assert r.status_code == 201, r.text
     assert r.json()["format"] == "zip" and r.json()["n_vertices"] == len(tpl.V)
+    # fitted by the worker: the textured OBJ's colours come out baked in the fit's GLB
+    r = client.post("/v1/fits", json={"scan_id": r.json()["id"], "options": {"schedule": "fast"}})
+    assert r.status_code == 202, r.text
+    fit_id = r.json()["id"]
+    assert wait_state(client, fit_id)["state"] == "succeeded"
+    g = client.get(f"/v1/fits/{fit_id}/result", params={"format": "glb"}).content
+    doc, _ = glb_parts(g)
+    prim = doc["meshes"][0]["primitives"][0]
+    assert prim["material"] == 0 and "TEXCOORD_0" in prim["attributes"]
+    png = client.get(f"/v1/fits/{fit_id}/result", params={"format": "png"}).content
+    rgb = sample_image(decode_image(png), L.uv[: len(tpl.V)])
+    assert np.abs(rgb - C).mean() / 0.8 < 0.05, np.abs(rgb - C).mean() / 0.8
     glb = textured_glb(None, tpl.V, img)
     r = _upload(client, "body.glb", glb)
     assert r.status_code == 201, r.text
