@@ -274,7 +274,14 @@ class FixedTopologyGlb:
 _COMPONENTS = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _NORM = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
-_HARMLESS = {"KHR_materials_unlit", "KHR_materials_emissive_strength", "KHR_materials_ior"}
+# required extensions we read (quantized accessors, texture transforms) or may ignore (looks)
+_SUPPORTED = {
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+    "KHR_materials_unlit",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+}
 MAX_JSON_BYTES = 64 << 20
 
 
@@ -331,7 +338,7 @@ class _Glb:
                 if o + 8 + blen > length:
                     raise InputFormatError(f"{bad}: its binary chunk runs past the end")
                 self.bin = memoryview(data)[o + 8 : o + 8 + blen]
-        required = set(self.doc.get("extensionsRequired") or ()) - _HARMLESS
+        required = set(self.doc.get("extensionsRequired") or ()) - _SUPPORTED
         if required:
             raise InputFormatError(
                 f"{what}: the GLB requires the extension(s) {', '.join(sorted(required))}, "
@@ -450,26 +457,46 @@ def _instances(g: _Glb) -> list[tuple[int, np.ndarray]]:
     return out
 
 
-def _image_bytes(g: _Glb, material: dict) -> tuple[bytes | None, int]:
-    """The base colour texture's encoded bytes and its texCoord set (None when untextured)."""
+def _uv_transform(info: dict) -> np.ndarray | None:
+    """The (3, 3) UV matrix of a texture info's ``KHR_texture_transform`` (None without one):
+    ``T(offset) R(rotation) S(scale)`` as the extension defines it."""
+    ext = (info.get("extensions") or {}).get("KHR_texture_transform")
+    if not isinstance(ext, dict):
+        return None
+    try:
+        ox, oy = (float(x) for x in ext.get("offset", (0.0, 0.0)))
+        sx, sy = (float(x) for x in ext.get("scale", (1.0, 1.0)))
+        r = float(ext.get("rotation", 0.0))
+    except (TypeError, ValueError):
+        raise InputFormatError("GLB KHR_texture_transform is malformed") from None
+    c, s = np.cos(r), np.sin(r)
+    T = np.array([[1.0, 0.0, ox], [0.0, 1.0, oy], [0.0, 0.0, 1.0]])
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # counter-clockwise
+    return T @ R @ np.diag([sx, sy, 1.0])
+
+
+def _image_bytes(g: _Glb, material: dict) -> tuple[bytes | None, int, np.ndarray | None]:
+    """The base colour texture's encoded bytes, its texCoord set and its UV transform (None,
+    0, None when untextured)."""
     import base64
 
     tex = (material.get("pbrMetallicRoughness") or {}).get("baseColorTexture")
     if not isinstance(tex, dict):
-        return None, 0
+        return None, 0, None
     texture = g._get("textures", tex.get("index"))
     source = texture.get("source")
     if source is None:
-        return None, 0
+        return None, 0, None
     img = g._get("images", source)
+    M = _uv_transform(tex)
+    tc = (tex.get("extensions") or {}).get("KHR_texture_transform", {}).get("texCoord")
+    tc = int(tex.get("texCoord", 0) if tc is None else tc)
     if "bufferView" in img:
-        return bytes(g.view_bytes(img["bufferView"])), int(tex.get("texCoord", 0))
+        return bytes(g.view_bytes(img["bufferView"])), tc, M
     uri = img.get("uri", "")
     if isinstance(uri, str) and uri.startswith("data:") and ";base64," in uri:
         try:
-            return base64.b64decode(uri.split(",", 1)[1], validate=True), int(
-                tex.get("texCoord", 0)
-            )
+            return base64.b64decode(uri.split(",", 1)[1], validate=True), tc, M
         except ValueError:
             raise InputFormatError(f"{g.what}: GLB image data URI is not valid base64") from None
     raise InputFormatError(
@@ -559,13 +586,15 @@ def read_glb_primitives(
             colors = None
             if "COLOR_0" in attrs:
                 colors = g.accessor(attrs["COLOR_0"], ("VEC3", "VEC4"))[:, :3].clip(0.0, 1.0)
-            image, tc = _image_bytes(g, material)
+            image, tc, uvm = _image_bytes(g, material)
             uv = None
             if image is not None:
                 key = f"TEXCOORD_{tc}"
                 if key not in attrs:
                     raise InputFormatError(f"{what}: GLB textured primitive has no {key}")
                 uv = g.accessor(attrs[key], ("VEC2",))
+                if uvm is not None:
+                    uv = uv @ uvm[:2, :2].T + uvm[:2, 2]
             for name, a in (("COLOR_0", colors), ("TEXCOORD", uv), ("NORMAL", normals)):
                 if a is not None and len(a) != n:
                     raise InputFormatError(f"{what}: GLB {name} count differs from POSITION's")

@@ -5,6 +5,7 @@ carries its colours to the body within the issue's bounds; bombs and broken bund
 from __future__ import annotations
 
 import io
+import json
 import struct
 import zipfile
 import zlib
@@ -22,6 +23,7 @@ from core.synth import ScanConfig, random_body, simulate_scan
 from core.template import load_template
 from core.transfer.colour import transfer_colours
 from core.transfer.texture import bake_texture, load_uv_layout, textured_glb
+from service.testing import glb_parts
 from tests.core.test_transfer_colour import paint
 
 
@@ -138,27 +140,44 @@ def test_glb_with_base_colour_texture(painted_template, tmp_path):
 
     (p,) = read_glb_primitives(data)
     assert p.image is not None and p.uv.shape == (len(L.uv), 2)
-    from service.testing import glb_parts
-
     doc, _ = glb_parts(data)
     doc["nodes"][0]["scale"] = [1000.0, 1000.0, 1000.0]
-    js = __import__("json").dumps(doc).encode()
-    js += b" " * (-len(js) % 4)
-    jlen = struct.unpack_from("<I", data, 12)[0]
-    rest = data[20 + jlen :]
-    mm = struct.pack("<III", 0x46546C67, 2, 20 + len(js) + len(rest)) + struct.pack(
-        "<II", len(js), 0x4E4F534A
-    )
-    raw_mm = read_mesh(mm + js + rest, "glb")
+    raw_mm = read_mesh(with_document(data, doc), "glb")
     np.testing.assert_allclose(raw_mm.V, raw.V * 1000.0, rtol=1e-6)
     # a required extension we do not read is named
     doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
-    js = __import__("json").dumps(doc).encode()
-    js += b" " * (-len(js) % 4)
-    head = struct.pack("<III", 0x46546C67, 2, 20 + len(js) + len(rest))
-    head += struct.pack("<II", len(js), 0x4E4F534A)
     with pytest.raises(InputFormatError, match="KHR_draco_mesh_compression"):
-        read_mesh(head + js + rest, "glb")
+        read_mesh(with_document(data, doc), "glb")
+    # KHR_texture_transform: UVs stored through the inverse of the extension's matrix (built
+    # here from its GLSL text: column-major mat3s, translation * rotation * scale)
+    from core.io.images import encode_png
+    from core.io.writers import write_glb
+
+    r, (ox, oy), (sx, sy) = 0.3, (0.1, 0.2), (0.8, 0.9)
+    T = np.array([[1, 0, 0], [0, 1, 0], [ox, oy, 1]], float).T
+    R = np.array([[np.cos(r), np.sin(r), 0], [-np.sin(r), np.cos(r), 0], [0, 0, 1]]).T
+    S = np.array([[sx, 0, 0], [0, sy, 0], [0, 0, 1]], float).T
+    Minv = np.linalg.inv(T @ R @ S)
+    stored = L.uv @ Minv[:2, :2].T + Minv[:2, 2]
+    moved = write_glb(None, raw.V, raw.F, texcoords=stored, texture_png=encode_png(img))
+    doc, _ = glb_parts(moved)
+    info = doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]
+    ext = {"offset": [ox, oy], "rotation": r, "scale": [sx, sy]}
+    info["extensions"] = {"KHR_texture_transform": ext}
+    doc["extensionsUsed"] = doc["extensionsRequired"] = ["KHR_texture_transform"]
+    got = read_mesh(with_document(moved, doc), "glb").colors
+    assert np.abs(got.astype(int) - raw.colors).max() <= 1  # float32 UVs
+    assert np.abs(read_mesh(moved, "glb").colors.astype(int) - raw.colors).mean() > 10
+
+
+def with_document(glb: bytes, doc: dict) -> bytes:
+    """The GLB ``glb`` with its JSON chunk replaced by ``doc`` (the binary chunk kept)."""
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    jlen = struct.unpack_from("<I", glb, 12)[0]
+    rest = glb[20 + jlen :]
+    head = struct.pack("<IIIII", 0x46546C67, 2, 20 + len(js) + len(rest), len(js), 0x4E4F534A)
+    return head + js + rest
 
 
 def _png_header_only(w: int, h: int) -> bytes:

@@ -6,9 +6,6 @@ pose -- carry them as ``COLOR_0`` (GLB and JSON). A textured scan uploaded as a 
 
 from __future__ import annotations
 
-import json
-import struct
-
 import numpy as np
 
 from core.io import read_mesh, write_markers_csv, write_ply
@@ -22,7 +19,7 @@ from core.transfer.texture import (
     write_textured_obj,
 )
 from service.testing import glb_parts, validate_glb, wait_state
-from tests.core.test_io_textured import _png_header_only, _zip
+from tests.core.test_io_textured import _png_header_only, _zip, with_document
 from tests.core.test_transfer_colour import paint
 
 JSON = {"Accept": "application/json"}
@@ -139,10 +136,5 @@ def test_textured_uploads(client, tmp_path):
     assert r.status_code == 422 and "body.mtl" in r.json()["error"]["message"], r.text
     doc, _ = glb_parts(glb)
     doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
-    js = json.dumps(doc).encode()
-    js += b" " * (-len(js) % 4)
-    jlen = struct.unpack_from("<I", glb, 12)[0]
-    rest = glb[20 + jlen :]
-    head = struct.pack("<IIIII", 0x46546C67, 2, 20 + len(js) + len(rest), len(js), 0x4E4F534A)
-    r = _upload(client, "draco.glb", head + js + rest)
+    r = _upload(client, "draco.glb", with_document(glb, doc))
     assert r.status_code == 422 and "KHR_draco" in r.json()["error"]["message"], r.text
