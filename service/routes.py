@@ -182,7 +182,8 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
         mfmt = {".csv": "csv", ".json": "json"}.get(Path(mfile.filename).suffix.lower())
         pts = read_markers(mfile.path, mfmt, valid_names=landmark_names(), name=mfile.filename)
         markers = {k: [float(x) for x in v] for k, v in pts.items()}
-    if scan.size <= settings.full_validation_max_bytes:
+    # small uploads are parsed whole (a ZIP bundle by what it inflates to)
+    if max(scan.size, head.get("inflated_bytes", 0)) <= settings.full_validation_max_bytes:
         raw = read_mesh(
             scan.path, head["format"], max_vertices=settings.max_vertices,
             max_faces=settings.max_faces, name=scan.filename, sidecar_files=False,
@@ -480,12 +481,13 @@ def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> 
     whose frame cannot be told without markers (``ambiguous_units``) before a markerless fit.
 
     Cheap checks on the scan as the job will read it; files larger than
-    ``full_validation_max_bytes`` are left to the job (which runs the same checks first).
+    ``full_validation_max_bytes`` are left to the job (which runs the same checks first), and
+    so are ZIP bundles (what they inflate to is not stored; up to 20x their size).
     """
     from core.io import detect_frame, read_mesh
     from core.matching.body_check import check_body_shape
 
-    if scan.size_bytes > settings.full_validation_max_bytes:
+    if scan.size_bytes > settings.full_validation_max_bytes or scan.format == "zip":
         return
     with store.local_copy(scan.blob_key) as path:
         raw = read_mesh(

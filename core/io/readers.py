@@ -786,6 +786,7 @@ _OBJ_MTLLIB = re.compile(rb"^[ \t]*mtllib[ \t]+([^\r\n]*)", re.M)
 MAX_SIDECAR_BYTES = 256 << 20  # one MTL or texture file
 MAX_BUNDLE_MEMBERS = 64
 MAX_BUNDLE_BYTES = 2 << 30  # inflated bytes read from one ZIP bundle
+_INSPECT_CHUNK = 1 << 24  # bytes of a bundle's OBJ inflated at a time by inspect_mesh_header
 MAX_BUNDLE_RATIO = 20  # ... and at most this many times the archive's own size (zip bombs)
 
 
@@ -1023,6 +1024,34 @@ def _member(z: zipfile.ZipFile, info: zipfile.ZipInfo, what: str) -> bytes:
     if len(out) != info.file_size:
         raise InputFormatError(f"{what}: {info.filename!r} is not the size its header declares")
     return out
+
+
+def _inspect_bundle(data: bytes, what: str) -> dict[str, Any]:
+    """:func:`inspect_mesh_header` of a ZIP bundle: the OBJ's lines counted while it inflates
+    in 16 MiB chunks (never held whole); ``inflated_bytes``: the members' declared total."""
+    z, obj, _ = _bundle(data, what)
+    nv = nf = 0
+    normals = False
+    with z, z.open(obj) as fh:
+        tail = b""
+        got = 0
+        while True:
+            chunk = fh.read(_INSPECT_CHUNK)
+            got += len(chunk)
+            if got > obj.file_size:
+                raise InputFormatError(f"{what}: {obj.filename!r} is larger than declared")
+            block = tail + chunk
+            if chunk:
+                cut = block.rfind(b"\n") + 1
+                block, tail = block[:cut], block[cut:]
+            nv += len(_OBJ_V.findall(block))
+            nf += len(_OBJ_F.findall(block))
+            normals = normals or bool(_OBJ_VN.search(block))
+            if not chunk:
+                break
+        inflated = sum(i.file_size for i in z.infolist())
+    return dict(format="zip", n_vertices=nv, n_faces=nf, has_normals=normals,
+                has_confidence=False, inflated_bytes=inflated)  # fmt: skip
 
 
 def _read_zip(
@@ -1535,7 +1564,8 @@ def inspect_mesh_header(
     -------
     dict
         ``format`` (str), ``n_vertices`` (int), ``n_faces`` (int, triangles before fan
-        triangulation for polygon formats), ``has_normals`` (bool), ``has_confidence`` (bool).
+        triangulation for polygon formats), ``has_normals`` (bool), ``has_confidence`` (bool);
+        for a ZIP bundle also ``inflated_bytes`` (int, what reading it inflates).
 
     Raises
     ------
@@ -1621,12 +1651,10 @@ def inspect_mesh_header(
         out = dict(
             format="glb", n_vertices=nv, n_faces=nf, has_normals=normals, has_confidence=False
         )
-    elif f in ("obj", "zip"):
+    elif f == "zip":
+        out = _inspect_bundle(_read_all(path_or_bytes), what)
+    elif f == "obj":
         data = _read_all(path_or_bytes)
-        if f == "zip":
-            z, obj, _ = _bundle(data, what)
-            with z:
-                data = _member(z, obj, what)
         out = dict(
             format=f,
             n_vertices=len(_OBJ_V.findall(data)),

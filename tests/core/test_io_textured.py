@@ -86,7 +86,7 @@ def test_obj_with_mtl_and_texture_beside_it(painted_template, tmp_path):
     assert err.mean() < 0.02, err.mean()
 
 
-def test_obj_bundle_zip(painted_template, tmp_path):
+def test_obj_bundle_zip(painted_template, tmp_path, monkeypatch):
     C, img, obj = painted_template
     data = _zip({"scan/scan.obj": obj, "scan/scan.mtl": MTL, "scan/skin.png": encode_png(img)})
     raw = read_mesh(data)  # sniffed: a ZIP holding an OBJ, not an NPZ
@@ -97,6 +97,14 @@ def test_obj_bundle_zip(painted_template, tmp_path):
 
     head = inspect_mesh_header(tmp_path / "bundle.zip")
     assert head["format"] == "zip" and head["n_vertices"] == len(C)
+    # the OBJ is counted while it inflates chunk by chunk: lines across chunks count once
+    import core.io.readers as readers
+
+    monkeypatch.setattr(readers, "_INSPECT_CHUNK", 4099)
+    small = inspect_mesh_header(tmp_path / "bundle.zip")
+    plain = inspect_mesh_header(obj, "obj")
+    assert (small["n_vertices"], small["n_faces"]) == (plain["n_vertices"], plain["n_faces"])
+    assert small["inflated_bytes"] > len(data)
     # a named file missing from the archive is an error naming it
     with pytest.raises(InputFormatError, match=r"skin\.png"):
         read_mesh(_zip({"scan.obj": obj, "scan.mtl": MTL}), "zip")
