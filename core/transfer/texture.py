@@ -94,26 +94,14 @@ def _rasterise(P: np.ndarray, F: np.ndarray, C: np.ndarray, size: int):
 
 
 def _dilate(img: np.ndarray, covered: np.ndarray, rings: int) -> np.ndarray:
-    """Grow the covered region by ``rings`` pixels (each new pixel the mean of its covered
-    8-neighbours), then give the rest of the background the mean covered colour."""
-    img, covered = img.copy(), covered.copy()
-    H, W = covered.shape
-    shifts = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
-    for _ in range(rings):
-        pad_v = np.pad(img * covered[..., None], ((1, 1), (1, 1), (0, 0)))
-        pad_c = np.pad(covered.astype(np.float64), 1)
-        acc = np.zeros_like(img)
-        n = np.zeros(covered.shape)
-        for di, dj in shifts:
-            acc += pad_v[1 + di : 1 + di + H, 1 + dj : 1 + dj + W]
-            n += pad_c[1 + di : 1 + di + H, 1 + dj : 1 + dj + W]
-        new = ~covered & (n > 0)
-        if not new.any():
-            break
-        img[new] = acc[new] / n[new, None]
-        covered |= new
-    img[~covered] = img[covered].mean(axis=0)
-    return img
+    """Grow the covered region by ``rings`` pixels (each new pixel takes its nearest covered
+    pixel's colour, Euclidean), then give the rest of the background the mean covered colour."""
+    from scipy.ndimage import distance_transform_edt
+
+    dist, (ii, jj) = distance_transform_edt(~covered, return_indices=True)
+    out = img[ii, jj]
+    out[dist > rings] = img[covered].mean(axis=0)
+    return out
 
 
 def bake_texture(
