@@ -283,6 +283,7 @@ _SUPPORTED = {
     "KHR_materials_ior",
 }
 MAX_JSON_BYTES = 64 << 20
+MAX_ZERO_ELEMENTS = 50_000_000  # elements of an accessor without data (all zeros)
 
 
 @dataclass
@@ -376,14 +377,21 @@ class _Glb:
             raise InputFormatError(f"{self.what}: GLB accessors[{i}] has no valid count")
         return n
 
-    def accessor(self, i: int, types: tuple[str, ...]) -> np.ndarray:
-        """(count, width) float64 (normalised integers scaled) or int64 values of accessor i."""
+    def accessor(self, i: int, types: tuple[str, ...], count: int | None = None) -> np.ndarray:
+        """(count, width) float64 (normalised integers scaled) or int64 values of accessor i
+        (``count``: the number of elements it must have, checked before reading)."""
         acc = self._get("accessors", i)
         ctype, typ, n = acc.get("componentType"), acc.get("type"), self.count(i)
         if ctype not in _COMPONENTS or typ not in types:
             raise InputFormatError(
                 f"{self.what}: GLB accessors[{i}] has type {typ!r}/{ctype!r}; expected {types}"
             )
+        if count is not None and n != count:
+            raise InputFormatError(
+                f"{self.what}: GLB accessors[{i}] has {n:,} elements; the primitive has {count:,}"
+            )
+        if "bufferView" not in acc and n > MAX_ZERO_ELEMENTS:
+            raise InputFormatError(f"{self.what}: GLB accessors[{i}] is too large")
         if "sparse" in acc:
             raise InputFormatError(f"{self.what}: GLB sparse accessors are not supported")
         dt = np.dtype(_COMPONENTS[ctype])
@@ -577,7 +585,7 @@ def read_glb_primitives(
             if "NORMAL" in attrs:
                 Minv = np.linalg.inv(M[:3, :3]).T if abs(np.linalg.det(M[:3, :3])) > 1e-30 else None
                 if Minv is not None:
-                    normals = g.accessor(attrs["NORMAL"], ("VEC3",)) @ Minv.T
+                    normals = g.accessor(attrs["NORMAL"], ("VEC3",), n) @ Minv.T
             material = g._get("materials", p["material"]) if "material" in p else {}
             pbr = material.get("pbrMetallicRoughness") or {}
             factor = np.asarray(pbr.get("baseColorFactor", (1, 1, 1, 1)), dtype=np.float64)
@@ -585,19 +593,16 @@ def read_glb_primitives(
                 raise InputFormatError(f"{what}: GLB baseColorFactor is malformed")
             colors = None
             if "COLOR_0" in attrs:
-                colors = g.accessor(attrs["COLOR_0"], ("VEC3", "VEC4"))[:, :3].clip(0.0, 1.0)
+                colors = g.accessor(attrs["COLOR_0"], ("VEC3", "VEC4"), n)[:, :3].clip(0, 1)
             image, tc, uvm = _image_bytes(g, material)
             uv = None
             if image is not None:
                 key = f"TEXCOORD_{tc}"
                 if key not in attrs:
                     raise InputFormatError(f"{what}: GLB textured primitive has no {key}")
-                uv = g.accessor(attrs[key], ("VEC2",))
+                uv = g.accessor(attrs[key], ("VEC2",), n)
                 if uvm is not None:
                     uv = uv @ uvm[:2, :2].T + uvm[:2, 2]
-            for name, a in (("COLOR_0", colors), ("TEXCOORD", uv), ("NORMAL", normals)):
-                if a is not None and len(a) != n:
-                    raise InputFormatError(f"{what}: GLB {name} count differs from POSITION's")
             out.append(GlbPrimitive(V, F, normals, colors, uv, image, factor[:3]))
     if not out:
         raise InputFormatError(f"{what}: the GLB has no triangle or point mesh")

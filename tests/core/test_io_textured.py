@@ -156,6 +156,18 @@ def test_glb_with_base_colour_texture(painted_template, tmp_path):
     doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
     with pytest.raises(InputFormatError, match="KHR_draco_mesh_compression"):
         read_mesh(with_document(data, doc), "glb")
+    # hostile accessors: a data-less TEXCOORD of 10^12 elements, a view past the data
+    bad, _ = glb_parts(data)
+    attrs = bad["meshes"][0]["primitives"][0]["attributes"]
+    acc = bad["accessors"][attrs["TEXCOORD_0"]]
+    del acc["bufferView"]
+    acc["count"] = 10**12
+    with pytest.raises(InputFormatError, match="elements"):
+        read_mesh(with_document(data, bad), "glb")
+    bad, _ = glb_parts(data)
+    bad["bufferViews"][0]["byteLength"] += 1 << 30
+    with pytest.raises(InputFormatError, match="runs past"):
+        read_mesh(with_document(data, bad), "glb")
     # KHR_texture_transform: UVs stored through the inverse of the extension's matrix (built
     # here from its GLSL text: column-major mat3s, translation * rotation * scale)
     from core.io.images import encode_png
