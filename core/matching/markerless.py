@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache
 from typing import Any
 
 import numpy as np
@@ -22,7 +21,7 @@ from core.registration.correspondence import ScanIndex
 from core.registration.fit import FitResult, Progress, fit, template_operators
 from core.registration.initialization import Similarity
 from core.registration.schedule import Schedule
-from core.registration.shape_prior import fit_body_prior
+from core.registration.shape_prior import arm_pose, fit_body_prior
 from core.scan import Scan
 from core.template import load_template
 from core.threads import single_blas_thread
@@ -202,28 +201,6 @@ def two_way_score(
     d_s, _ = cKDTree(X[body_ids]).query(index.points[scan_ids], k=1, workers=-1)
     s2 = SCORE_SIGMA**2
     return float(np.mean(d_b**2 / (d_b**2 + s2)) + np.mean(d_s**2 / (d_s**2 + s2)))
-
-
-def arm_pose(abduction_deg: float) -> dict[str, np.ndarray]:
-    """Local rotations of both upper arms that put them ``abduction_deg`` from the body's side
-    (the template's own abduction is measured from its joints)."""
-    from core.rig import axis_angle
-
-    rest = _template_arm_abduction()
-    z = np.array([0.0, 0.0, 1.0])
-    d = np.radians(abduction_deg - rest)
-    return {"upperarm01.L": axis_angle(z, d), "upperarm01.R": axis_angle(z, -d)}
-
-
-@cache
-def _template_arm_abduction() -> float:
-    """Degrees between the template's left upper arm (shoulder → elbow joint) and −Y."""
-    from core.rig import joint_positions, load_rig
-
-    rig = load_rig()
-    J = joint_positions(load_template().V, rig=rig)
-    d = J[rig.index("lowerarm01.L")] - J[rig.index("upperarm01.L")]
-    return float(np.degrees(np.arctan2(d[0], -d[1])))
 
 
 def choose_alignment(

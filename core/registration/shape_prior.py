@@ -136,6 +136,39 @@ def load_shape_basis(k: int = 60) -> ShapeBasis:
     return compute_shape_basis(k)
 
 
+#: Prior on the *total* rotation of the distal arm bones, ``(bone, bend, twist)`` weights per
+#: radian² in units of one data row (m²): scanning postures keep the wrists straight and the elbows
+#: near the rest pose's flexion; without it the hands of arms close to the body followed thigh
+#: data (wrists bent 95-175°, hands 5-28 cm off: ``core.synth.scanner_outputs`` closed_hair-1,
+#: cloud-6, closed_lowres-16, closed_touching-5/17). Twist (pronation) is left nearly free.
+BONE_PRIOR: tuple[tuple[str, float, float], ...] = (
+    ("wrist.L", 0.1, 0.01), ("wrist.R", 0.1, 0.01),
+    ("lowerarm01.L", 0.03, 0.003), ("lowerarm01.R", 0.03, 0.003),
+)  # fmt: skip
+
+
+def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
+    """Local rotations of the upper arms of ``sides`` (``"L"``, ``"R"`` or both) that put them
+    ``abduction_deg`` from the body's side (the template's own abduction,
+    :func:`template_arm_abduction`, is undone): a start for :func:`fit_body_prior`."""
+    from core.rig import axis_angle
+
+    z = np.array([0.0, 0.0, 1.0])
+    d = np.radians(abduction_deg - template_arm_abduction())
+    return {f"upperarm01.{x}": axis_angle(z, d if x == "L" else -d) for x in sides}
+
+
+@cache
+def template_arm_abduction() -> float:
+    """Degrees between the template's left upper arm (shoulder → elbow joint) and −Y."""
+    from core.template import load_template
+
+    rig = load_rig()
+    J = joint_positions(load_template().V, rig=rig)
+    d = J[rig.index("lowerarm01.L")] - J[rig.index("upperarm01.L")]
+    return float(np.degrees(np.arctan2(d[0], -d[1])))
+
+
 @dataclass(frozen=True)
 class PriorOptions:
     """Tuning of :func:`fit_body_prior` (its keyword arguments of the same names and defaults).
@@ -159,6 +192,7 @@ class PriorOptions:
     max_angle_deg: float = 60.0
     point_weight: float = 0.0
     basis: ShapeBasis | None = None
+    bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -172,6 +206,8 @@ class PriorOptions:
         d = dict(value)
         if d.get("k_schedule") is not None:
             d["k_schedule"] = tuple(d["k_schedule"])
+        if d.get("bone_prior") is not None:
+            d["bone_prior"] = tuple((str(b), float(x), float(y)) for b, x, y in d["bone_prior"])
         return cls(**d)
 
     def kwargs(self) -> dict:
@@ -321,6 +357,29 @@ class _Articulation:
         return out
 
 
+def _bone_metrics(
+    art: _Articulation, V0: np.ndarray, weights: tuple[tuple[str, float, float], ...]
+) -> list[tuple[int, np.ndarray]]:
+    """(bone slot, (3, 3) metric) per ``(bone, bend, twist)`` of ``weights``: ``bend`` weighs the
+    part of the bone's total rotation vector (radians) across the bone's axis (joint → centroid of
+    the vertices it and its descendants carry, at rest), ``twist`` the part along it."""
+    if not weights:
+        return []
+    joints = joint_positions(V0, rig=art.rig)
+    out = []
+    for name, bend, twist in weights:
+        if bend <= 0 and twist <= 0:
+            continue
+        a = art.names.index(name)
+        j = art.bones[a]
+        carried = np.flatnonzero(art.desc[a, art.c] & (art.w > 0.5))
+        d = V0[np.unique(art.r[carried])].mean(axis=0) - joints[j]
+        d /= np.linalg.norm(d)
+        P = np.outer(d, d)
+        out.append((a, bend * (np.eye(3) - P) + twist * P))
+    return out
+
+
 def fit_body_prior(
     index: ScanIndex | None,
     V0: np.ndarray,
@@ -349,6 +408,7 @@ def fit_body_prior(
     initial_coefficients: np.ndarray | None = None,
     max_angle_deg: float = 60.0,
     point_weight: float = 0.0,
+    bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -388,6 +448,9 @@ def fit_body_prior(
     point_weight : weight of point-to-point data rows (all three coordinates) next to the
         point-to-plane ones (0: point-to-plane only). Without markers, point-to-plane pairs let
         the body slide along the scan's walls (legs grow below soles a raw scan lacks).
+    bone_prior : ``(bone, bend, twist)`` weights of a prior on those bones' total rotation
+        (:data:`BONE_PRIOR`: wrists and elbows); ``()`` leaves every bone free (the pose
+        prior then only damps each iteration's step).
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -417,6 +480,7 @@ def fit_body_prior(
     damping = 1e-3
     rms_d = float("nan")
     Xp, aux = art.pose(V0 + U @ c, local)
+    bone_M = _bone_metrics(art, V0, bone_prior)
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -481,6 +545,13 @@ def fit_body_prior(
         wvec = np.r_[c, np.zeros(3 * B)]
         H += np.diag(prior)
         g -= prior * wvec
+        for a, M in bone_M:  # total rotation of the distal arm bones off the rest pose
+            j = art.bones[a]
+            Rp = aux["R"][art.rig.parents[j]]
+            r = Rotation.from_matrix(local[a]).as_rotvec()
+            sl = slice(k + 3 * a, k + 3 * a + 3)
+            H[sl, sl] += Rp @ M @ Rp.T
+            g[sl] -= Rp @ (M @ r)
         H += damping * np.diag(np.diag(H))
         delta = np.linalg.solve(H, g)
         c = c + delta[:k]
