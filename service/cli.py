@@ -670,6 +670,42 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_texture(args: argparse.Namespace) -> int:
+    from core.io import read_mesh
+    from core.io.images import decode_image, encode_png
+    from core.io.writers import atomic_write
+    from core.shapespace.build import read_body
+    from core.transfer.texture import bake_texture, textured_glb, write_textured_obj
+
+    body = _check_in_path(Path(args.body), "body")
+    out = _check_out_path(Path(args.out), (".png", ".glb", ".obj"))
+    if not 16 <= args.size <= 8192:
+        raise CliError(f"--size must be 16..8192 pixels, got {args.size}")
+    V = read_body(body)
+    if args.texture is not None:
+        tex_path = _check_in_path(Path(args.texture), "texture")
+        image = decode_image(tex_path.read_bytes(), name=tex_path.name)
+        how = f"the texture {tex_path.name}"
+    else:
+        colours = read_mesh(body).colors if body.suffix.lower() != ".npz" else None
+        if colours is None:
+            raise CliError(
+                f"{body.name} has no vertex colours to bake; give --texture T.png (a texture "
+                "on the template UV layout, e.g. one this command baked from another body)"
+            )
+        image = bake_texture(colours, size=args.size)
+        how = f"its colours baked ({args.size} px)"
+    if out.suffix.lower() == ".png":
+        atomic_write(out, encode_png(image))
+    elif out.suffix.lower() == ".glb":
+        textured_glb(out, V, image)
+    else:
+        write_textured_obj(out, V, image)
+    if not args.quiet:
+        print(f"wrote {out}: {body.name} with {how} on the template UV layout")
+    return 0
+
+
 JOINT_METHODS = ("regressor", "markers")  # = core.transfer.rig's (not imported: fast --help)
 POSTURE_NAMES = ("standing", "seated", "driving", "reach")
 
@@ -709,6 +745,23 @@ def register_rig(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_pose)
 
 
+def register_texture(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "texture",
+        help="bake a coloured body's texture, or dress a body in a texture",
+        description="Every body shares the template's UV layout, so a texture moves from one "
+        "body to any other. Without --texture: the body's vertex colours (a PLY of a coloured "
+        "fit) baked into a texture; with --texture: that image (PNG/JPEG on the template UV "
+        "layout) on this body. --out .png (the texture), .glb (textured) or .obj (+ .mtl, .png).",
+    )
+    p.add_argument("body", metavar="BODY", help="a body in template order (.ply, .obj, .npz)")
+    p.add_argument("--texture", metavar="T.png", help="a texture on the template UV layout")
+    p.add_argument("--size", type=int, default=1024, help="baked texture size in pixels")
+    p.add_argument("--out", required=True, metavar="OUT", help=".png, .glb or .obj")
+    p.add_argument("--quiet", action="store_true", help="no summary")
+    p.set_defaults(func=_cmd_texture)
+
+
 # --------------------------------------------------------------------------- parser, main
 
 BUILTIN_COMMANDS: list[Registrar] = [
@@ -718,6 +771,7 @@ BUILTIN_COMMANDS: list[Registrar] = [
     register_from_measurements,
     register_morph,
     register_rig,
+    register_texture,
 ]
 
 

@@ -1,5 +1,5 @@
 """``bodyspace morph``: a validator-clean GLB with morph targets from body files, one in-between
-body with ``--t``, one-line errors."""
+body with ``--t``, one-line errors; ``rig``, ``pose``, a coloured ``fit`` and ``texture``."""
 
 from __future__ import annotations
 
@@ -137,3 +137,41 @@ def test_fit_of_a_coloured_scan_is_coloured(tmp_path):
     np.testing.assert_allclose(o.V, m.V, atol=1e-9)
     do = np.abs(o.colors.astype(int) - m.colors.astype(int))
     assert do.mean() < 2, do.mean()
+
+
+def test_texture_baked_on_one_body_dresses_another(tmp_path):
+    """``bodyspace texture``: body A's colours baked into a PNG, that PNG on body B as a
+    validator-clean GLB and as OBJ + MTL + PNG (B's colours at its vertices = A's); a body
+    without colours and no --texture is a one-line error."""
+    from core.io.images import decode_image, sample_image
+    from core.transfer.texture import load_uv_layout
+    from tests.core.test_transfer_colour import paint
+
+    tpl, L = load_template(), load_uv_layout()
+    (a, Va), (b, Vb) = _bodies(tmp_path, 2)
+    C = paint(Va)  # colours that follow body A's own shape
+    write_ply(a, Va, tpl.F, colors=C)
+    png = tmp_path / "a.png"
+    r = run_cli("texture", a, "--size", "512", "--out", png)
+    assert r.returncode == 0, r.stderr
+    img = decode_image(png.read_bytes())
+    assert img.shape == (512, 512, 3)
+    glb = tmp_path / "b.glb"
+    r = run_cli("texture", b, "--texture", png, "--out", glb)
+    assert r.returncode == 0, r.stderr
+    report = validate_glb(glb)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(glb.read_bytes())
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    np.testing.assert_allclose(accessor(attrs["POSITION"])[: len(Vb)], Vb, atol=1e-6)
+    rgb = sample_image(img, accessor(attrs["TEXCOORD_0"])[: len(Vb)])
+    assert np.abs(rgb - C).mean() / 0.8 < 0.01
+    obj = tmp_path / "b.obj"
+    r = run_cli("texture", b, "--texture", png, "--out", obj)
+    assert r.returncode == 0, r.stderr
+    m = read_mesh(obj)  # with b.mtl and b.png beside it
+    np.testing.assert_allclose(m.V, Vb, atol=1e-9)
+    assert np.abs(m.colors / 255.0 - C).mean() / 0.8 < 0.01
+    assert_one_line_error(run_cli("texture", b, "--out", tmp_path / "x.glb"), "no vertex colours")
+    assert_one_line_error(run_cli("texture", b, "--texture", a, "--out", glb), "PNG or JPEG")
+    assert len(L.uv) == len(accessor(attrs["TEXCOORD_0"]))
