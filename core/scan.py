@@ -73,6 +73,8 @@ class Scan:
     frame : how the file's coordinates were mapped here.
     notes : human-readable notes for the report (e.g. "confidence estimated").
     colors : (n, 3) uint8 RGB per point, or None (the file had no colours).
+    removed : points of the file left out as not the body (``core.io.clean``), by kind:
+        ``{"floor_points": n, "stray_points": m}``; empty when the scan was not prepared.
     """
 
     V: np.ndarray
@@ -83,3 +85,4 @@ class Scan:
     frame: FrameInfo | None = None
     notes: list[str] = field(default_factory=list)
     colors: np.ndarray | None = None
+    removed: dict[str, int] = field(default_factory=dict)

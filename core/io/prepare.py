@@ -2,7 +2,8 @@
 
 Steps (all vectorised): map to the canonical frame (metres, +Y up); clean (weld exactly
 coincident vertices, drop degenerate and duplicate triangles and unreferenced vertices, drop
-duplicate points of a cloud); normals (from the file, else area-weighted for meshes or PCA of
+duplicate points of a cloud); remove what is not the body (a floor plate or floor points, stray
+blobs: :mod:`core.io.clean`); normals (from the file, else area-weighted for meshes or PCA of
 the k nearest neighbours for clouds, oriented outward); boundary flags; confidence (from the
 file, else estimated from the distance to the nearest boundary and isolation).
 """
@@ -18,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from core.errors import InputFormatError
 from core.io._geometry import normalize, vertex_normals
+from core.io.clean import remove_non_body
 from core.io.frame import apply_frame, detect_frame
 from core.io.markers import read_markers
 from core.io.orient import orient_components
@@ -274,7 +276,9 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
     -------
     Scan
         Metres, +Y up; ``normals`` (n, 3) unit and outward, ``confidence`` (n,) in [0, 1],
-        ``boundary`` (n,) bool; ``notes`` say what was cleaned, estimated or flipped.
+        ``boundary`` (n,) bool; ``notes`` say what was cleaned, removed, estimated or flipped;
+        ``removed`` counts the floor and stray points left out (only the body's points are
+        kept).
     """
     notes: list[str] = []
     m = apply_frame(raw, frame)
@@ -290,6 +294,8 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
         m = _clean_mesh(m, notes)
     if m.F is None or len(m.F) == 0:
         m = _clean_cloud(RawMesh(m.V, None, m.normals, m.confidence, m.colors), notes)
+    m, non_body = remove_non_body(m)
+    notes.extend(non_body.notes)
     V = m.V
     n = len(V)
     F = m.F
@@ -365,6 +371,7 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
         frame=frame,
         notes=notes,
         colors=None if m.colors is None else np.asarray(m.colors, dtype=np.uint8),
+        removed=non_body.counts,
     )
 
 

@@ -91,69 +91,6 @@ def candidate_alignments(scan: Scan, *, upside_down: bool = True) -> list[Simila
     return out
 
 
-#: metres; floor points: in the bottom band, farther than FLOOR_REACH from the feet above it.
-FLOOR_BAND, FLOOR_REACH = 0.02, 0.10
-#: metres; points of the subsample farther than this from the body's cluster are stray blobs.
-BLOB_GAP = 0.06
-
-
-def body_points(scan: Scan, n_sample: int = 6000) -> tuple[np.ndarray, dict[str, int]]:
-    """Which scan points belong to the body: (n,) bool and counts of what was left out.
-
-    - **floor**: points in the bottom :data:`FLOOR_BAND` more than :data:`FLOOR_REACH`
-      (horizontally and up) from any point just above the band (the feet): a floor plate
-      beyond the feet, floor points, a ring of floor around the subject;
-    - **blobs**: points whose nearest point of the largest cluster (points linked within
-      :data:`BLOB_GAP` on a subsample of ``n_sample``) is farther than that: stray objects.
-    """
-    V = np.asarray(scan.V)
-    n = len(V)
-    keep = np.ones(n, bool)
-    y = V[:, 1]
-    lo = float(np.percentile(y, 0.05))
-    band = y < lo + FLOOR_BAND
-    above = (y >= lo + FLOOR_BAND) & (y < lo + FLOOR_BAND + 0.06)
-    n_floor = 0
-    if band.any() and above.sum() >= 10:
-        d, _ = cKDTree(V[above]).query(V[band], k=1, distance_upper_bound=FLOOR_REACH + 0.01)
-        floor = np.flatnonzero(band)[d > FLOOR_REACH]
-        keep[floor] = False
-        n_floor = len(floor)
-    idx = np.flatnonzero(keep)
-    sub = idx[np.linspace(0, len(idx) - 1, min(n_sample, len(idx))).astype(np.int64)]
-    tree = cKDTree(V[sub])
-    pairs = tree.query_pairs(BLOB_GAP, output_type="ndarray")
-    from scipy import sparse
-    from scipy.sparse import csgraph
-
-    m = len(sub)
-    G = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
-    _, lab = csgraph.connected_components(G, directed=False)
-    main = sub[lab == np.argmax(np.bincount(lab))]
-    d, _ = cKDTree(V[main]).query(V[idx], k=1, distance_upper_bound=BLOB_GAP)
-    blobs = idx[~np.isfinite(d)]
-    keep[blobs] = False
-    return keep, {"floor": n_floor, "blobs": len(blobs)}
-
-
-def body_only(scan: Scan) -> tuple[Scan, str | None]:
-    """The scan without floor points and stray blobs (:func:`body_points`), and a note (None
-    when nothing was left out)."""
-    keep, what = body_points(scan)
-    if keep.all():
-        return scan, None
-    F = scan.F
-    if F is not None:
-        F = F[keep[F].all(axis=1)]
-        F = (np.cumsum(keep) - 1)[F]
-    trimmed = Scan(
-        V=scan.V[keep], F=F, normals=scan.normals[keep], confidence=scan.confidence[keep],
-        boundary=scan.boundary[keep], frame=scan.frame, notes=list(scan.notes),
-    )  # fmt: skip
-    parts = [f"{v:,} {k} points" for k, v in what.items() if v]
-    return trimmed, "left out as not the body: " + ", ".join(parts)
-
-
 #: Arm abductions (degrees from the body's side) the articulated search starts from: scanning
 #: protocols put the arms anywhere from touching the torso to 60° out.
 ARM_HYPOTHESES = (10.0, 30.0, 50.0)
@@ -294,7 +231,6 @@ def fit_markerless(
     """
     frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
     check_body_shape(scan.V, scan.F, frame=frame)
-    scan, trimmed = body_only(scan)
     index = ScanIndex(scan)
     start, scores = choose_alignment(scan, index)
     best_cov = start.coverage
@@ -336,8 +272,6 @@ def fit_markerless(
             f"the previous round as soft markers ({n_warn} left out as far from the body)"
         )
         rep.markers_used, rep.markers_dropped, rep.marker_residuals_m = [], [], {}
-    if trimmed:
-        res.report.notes.append(trimmed)
     res.report.notes.append(
         f"markerless: best of {len(scores)} starts ({start.label}; two-way score "
         f"{start.score:.3f}, {best_cov * 100:.0f} % of the template within 1.5 cm)"

@@ -93,8 +93,11 @@ class FitReport:
     scale: float = float("nan")
     units: str | None = None
     up: str | None = None
-    scan_vertices: int = 0
+    scan_vertices: int = 0  # the scan's points the fit used (after removing what is not the body)
     scan_faces: int = 0
+    # points of the file left out as not the body (core.io.clean): floor_points, stray_points;
+    # scan_vertices and the scan→fit figures count only the kept points
+    removed: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     quality: FitQuality | None = None  # per-part check and verdict (core.registration.quality)
@@ -242,6 +245,13 @@ def iter_fit(
     tpl = ops.template
     report = FitReport(scan_vertices=len(scan.V), scan_faces=0 if scan.F is None else len(scan.F))
     report.notes.extend(scan.notes)
+    report.removed = dict(scan.removed)
+    if any(report.removed.values()):
+        what = ", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in report.removed.items() if v)
+        report.warnings.append(
+            f"removed from the scan as not the body: {what}; the scan→fit figures and the "
+            f"quality check are over the {len(scan.V):,} kept points"
+        )
     if scan.frame is not None:
         report.units, report.up = scan.frame.units, scan.frame.up
 

@@ -141,11 +141,24 @@ def test_point_cloud_hole_boundary_and_lower_confidence(cloud):
     assert s.confidence[rim].mean() < 0.6 < s.confidence[d > 0.15].mean()
 
 
-def test_isolated_points_get_low_confidence(cloud):
+def test_far_stray_points_are_removed_and_counted(cloud):
     P, _ = cloud
     stray = np.array([[0.0, 3.0, 0.0], [1.5, 1.0, 1.5]])
     s = prep(RawMesh(V=np.vstack([P, stray])))
-    assert np.all(s.confidence[-2:] == pytest.approx(0.2))
+    assert s.removed == {"floor_points": 0, "stray_points": 2}
+    assert len(s.V) == len(P) and np.abs(s.V[:, 1]).max() < 2.5
+    assert any("removed 2 stray points" in n for n in s.notes)
+
+
+def test_isolated_fragments_near_the_body_are_kept_with_low_confidence():
+    """A scanner fragment (a lone triangle 1 cm off the belly) is no stray blob: kept, at the
+    isolated points' confidence."""
+    p = V0[TPL.landmarks["Omphalion"]] + [0.0, 0.0, 0.01]
+    tri = p + np.array([[0.0, 0.0, 0.0], [0.004, 0.0, 0.0], [0.0, 0.004, 0.0]])
+    n = len(V0)
+    s = prep(RawMesh(V=np.vstack([V0, tri]), F=np.vstack([F0, [[n, n + 1, n + 2]]])))
+    assert s.removed == {"floor_points": 0, "stray_points": 0}
+    assert np.all(s.confidence[-3:] == pytest.approx(0.2))
 
 
 def test_prepare_300k_mesh_under_a_second():
