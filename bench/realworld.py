@@ -124,6 +124,39 @@ def surface_metrics(
     }
 
 
+def non_body_labels(V: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(body, not_body) (n,) bool for scan points V (n, 3) of the body ``truth`` (13380, 3),
+    canonical metres (either way up): *body* within 10 mm of the true surface and more than
+    5 mm above its soles (a foot's lowest millimetres touch the floor: judged neither way),
+    *not_body* more than 20 mm from it or below its soles (floor, plate, blobs; hair too)."""
+    from core.geometry import MeshDistance
+    from core.template import load_template
+
+    tpl = load_template()
+    d = MeshDistance(truth, np.asarray(tpl.F, np.int64), k=8).distances(V)
+    up = 1.0 if truth[tpl.landmarks["Vertex"], 1] > np.median(truth[:, 1]) else -1.0
+    h, sole = up * V[:, 1], (up * truth[:, 1]).min()
+    return (d < 0.010) & (h > sole + 0.005), (d > 0.020) | (h < sole - 0.002)
+
+
+def removal_check(P: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
+    """What ``core.io.clean`` removes from the scan points P (n, 3), canonical metres, judged by
+    the truth (:func:`non_body_labels`; on 300 000 random points at most)."""
+    from core.io.clean import non_body_points
+
+    if len(P) > 300_000:
+        P = P[np.random.default_rng(0).choice(len(P), 300_000, replace=False)]
+    gone = ~non_body_points(P).keep
+    body, junk = non_body_labels(P, truth)
+    return {
+        "check_points": len(P),
+        "body_points": int(body.sum()),
+        "body_points_removed": int((gone & body).sum()),
+        "not_body_points": int(junk.sum()),
+        "not_body_points_removed": int((gone & junk).sum()),
+    }
+
+
 def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -> dict[str, Any]:
     """Make, write, fit and measure one case; never raises (failures are recorded)."""
     from core.errors import BodyspaceError
@@ -175,6 +208,8 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     row["warnings"] = list(rep.warnings)
     row["frame"] = info["frame"]
     truth = scan.frame.to_canonical(case.truth)
+    row["removed"] = dict(rep.removed)
+    row["removal_check"] = removal_check(scan.frame.to_canonical(case.V), truth)
     row.update(surface_metrics(scan, result.vertices, np.asarray(result.faces, np.int64), truth))
     # frame sanity: the truth lies on the scan (hair and mittens aside)
     if scan.F is not None and len(scan.F):
@@ -352,6 +387,19 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         f"{sum(r.get('quality') == 'good' and r['scan_to_fit_p95_mm'] > 6.0 for r in ok)}",
         f"fit time: median {_f(med_time)} s wall, {_f(med_cpu)} s CPU",
     ]
+    rc = [r["removal_check"] for r in ok if "removal_check" in r]
+    rm = [r.get("removed", {}) for r in ok]
+    if rc:
+        tot = {k: sum(c[k] for c in rc) for k in rc[0]}
+        lines.append(
+            "removed as not the body (reports): floor points "
+            f"{sum(x.get('floor_points', 0) for x in rm):,}, stray points "
+            f"{sum(x.get('stray_points', 0) for x in rm):,} in "
+            f"{sum(any(x.values()) for x in rm)}/{len(ok)} cases; judged by the truth: of the "
+            f"points not the body {tot['not_body_points_removed']:,}/{tot['not_body_points']:,}"
+            f" removed, of the body's {tot['body_points_removed']:,}/{tot['body_points']:,} "
+            f"({100 * tot['body_points_removed'] / max(tot['body_points'], 1):.2f} %)"
+        )
     lost = [(r, lost_parts(r)) for r in ok if lost_parts(r)]
     lines.append(
         f"fits with a lost part (centroid > {LOST_PART_MM:.0f} mm off the truth's): "

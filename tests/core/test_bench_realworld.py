@@ -54,3 +54,29 @@ def test_report_counts_lost_parts_and_good_verdicts_on_them():
     assert "fits with a lost part (centroid > 50 mm off the truth's): 2/3" in text
     assert "'good' verdicts with a lost part: 1; lost parts not 'failed': 1" in text
     assert "raw-1 (failed): hand_L 140 mm (failed)" in text
+
+
+def test_removal_check_counts_the_plate_and_spares_the_body():
+    """``removal_check`` judges ``core.io.clean`` by the truth: the template standing on a
+    thin disc of points loses the disc, not its body."""
+    from bench.realworld import removal_check, report
+
+    tpl = load_template()
+    V = np.asarray(tpl.V, float)
+    sole = V[:, 1].min()
+    g = np.arange(-0.5, 0.5, 0.01)
+    X, Z = (a.ravel() for a in np.meshgrid(g, g))
+    disc = np.c_[X, np.full(len(X), sole - 0.003), Z][np.hypot(X, Z) < 0.5]
+    c = removal_check(np.vstack([V, disc]), V)
+    assert c["not_body_points"] >= len(disc) and c["body_points"] > 0.8 * len(V)
+    assert c["not_body_points_removed"] >= 0.95 * c["not_body_points"]
+    assert c["body_points_removed"] <= 0.005 * c["body_points"]
+    row = {
+        "seed": 0, "kind": "raw", "family": "raw", "outcome": "fitted", "quality": "good",
+        "scan_to_fit_median_mm": 1.0, "scan_to_fit_p95_mm": 3.0, "fit_to_scan_mean_mm": 1.0,
+        "body_scan_to_fit_median_mm": 1.0, "body_scan_to_fit_p95_mm": 3.0, "corr_mean_mm": 1.0,
+        "corr_p95_mm": 2.0, "fit_wall_s": 1.0, "fit_cpu_s": 1.0, "removal_check": c,
+        "removed": {"floor_points": len(disc), "stray_points": 0},
+    }  # fmt: skip
+    text = "\n".join(report([row], [], True))
+    assert f"removed as not the body (reports): floor points {len(disc):,}" in text

@@ -1,11 +1,11 @@
 """What is not the body is removed during scan preparation (``core.io.clean``): floor plates,
 floor points and stray blobs go; soles, toes and body parts that are separate components stay.
 
-Labels come from the generators' truth: *body* points lie within 10 mm of the true body surface
-and more than 5 mm above its soles (a foot standing on a floor cannot be told from the floor in
-its lowest millimetres; those points are judged neither way); *plate* points lie below the
-soles' level or more than 20 mm from the body (a plate's top beside the feet is within 10 mm of
-them).
+Labels come from the generators' truth (``bench.realworld.non_body_labels``): *body* points lie
+within 10 mm of the true body surface and more than 5 mm above its soles (a foot standing on a
+floor cannot be told from the floor in its lowest millimetres; those points are judged neither
+way); *plate* points lie below the soles' level or more than 20 mm from the body (a plate's top
+beside the feet is within 10 mm of them).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from bench.cases import make_case as sim_case
-from core.geometry import MeshDistance
+from bench.realworld import non_body_labels
 from core.io import detect_frame, prepare_scan
 from core.io.clean import non_body_points
 from core.io.frame import apply_frame
@@ -25,15 +25,6 @@ from core.scan import RawMesh
 from core.synth.realworld import off_model_body
 from core.synth.scanner_outputs import closed_mesh, make_case
 from core.template import load_template
-
-
-def _labels(V: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(body, junk) (n,) bool for points V of a scan of ``truth`` (13380, 3), +Y up, metres."""
-    tpl = load_template()
-    d = MeshDistance(truth, np.asarray(tpl.F, np.int64), k=8).distances(V)
-    up = 1.0 if truth[tpl.landmarks["Vertex"], 1] > np.median(truth[:, 1]) else -1.0
-    h, sole = up * V[:, 1], (up * truth[:, 1]).min()
-    return (d < 0.010) & (h > sole + 0.005), (d > 0.020) | (h < sole - 0.002)
 
 
 def _canonical(case) -> tuple[RawMesh, np.ndarray]:
@@ -48,7 +39,7 @@ def test_plate_and_clutter_of_real_world_cases_are_removed(seed, kind):
     c = make_case(seed, kind)
     m, truth = _canonical(c)
     nb = non_body_points(m.V)
-    body, junk = _labels(m.V, truth)
+    body, junk = non_body_labels(m.V, truth)
     removed = ~nb.keep
     assert junk.sum() > 3000
     assert removed[junk].mean() >= 0.95, removed[junk].mean()
@@ -102,7 +93,7 @@ def test_a_disc_under_a_simulated_body_is_removed_and_reported(small):
     V, plate = _disc_under(small)
     frame = detect_frame(V, units="m", up="+y")
     nb = non_body_points(V)
-    body, _ = _labels(V, small.truth)
+    body, _ = non_body_labels(V, small.truth)
     body &= ~plate
     assert nb.floor[plate].mean() >= 0.95, nb.floor[plate].mean()
     assert (~nb.keep)[body].mean() < 0.005
