@@ -233,6 +233,27 @@ def _body_colors(store: BlobStore, b: Body) -> np.ndarray | None:
     return C if C is not None and len(C) == int(_template_faces().max()) + 1 else None
 
 
+def _fit_texture(store: BlobStore, session: Session, tenant: str, fit_id: str) -> bytes:
+    """The PNG texture baked for the caller's fit ``fit_id`` (template UV layout)."""
+    from service.fit_job import result_key
+
+    fit = _own(session, Fit, fit_id, tenant, "fit")
+    if fit.state != "succeeded":
+        raise ApiError("fit_not_ready", f"fit {fit.id} is {fit.state}", state=fit.state)
+    if not (fit.report or {}).get("texture"):
+        raise ApiError("not_found", f"fit {fit.id} has no texture: its scan had no colours")
+    key = result_key(tenant, fit.id, "png")
+    try:
+        with store.local_copy(key) as p:
+            png = p.read_bytes()
+    except FileNotFoundError:
+        log.error("result %s of %s is missing from storage", key, fit.id)
+        raise ApiError(
+            "not_found", f"the texture of fit {fit.id} is missing from storage"
+        ) from None
+    return png
+
+
 def _mesh_response(
     request: Request,
     b: Body,
@@ -408,12 +429,27 @@ def get_body(
             "inverse bind matrices, 4 skin weights per vertex (always GLB)"
         ),
     ] = False,
+    texture_from: Annotated[
+        str | None,
+        Query(
+            max_length=64,
+            description="a fit of yours whose scan had colours or a texture: this body as a "
+            "textured GLB wearing that fit's texture (every body shares the template UV layout; "
+            "always GLB; with rig=true skinned too)",
+        ),
+    ] = None,
 ) -> Response:
     """A body's mesh: GLB, or with ``Accept: application/json`` its metadata, vertices and
     faces; ``?rig=true``: a skinned GLB that poses in any glTF viewer (a joint node's rotation
-    is the rig's local rotation: the bind pose has none)."""
+    is the rig's local rotation: the bind pose has none); ``?texture_from=FIT``: a textured GLB
+    of this body wearing the fit's baked texture (rigged too with ``rig=true``)."""
     b = _own(session, Body, body_id, tenant, "body")
     V = _load_vertices(store, b.blob_key)
+    png = None if texture_from is None else _fit_texture(store, session, tenant, texture_from)
+    if png is not None and not rig:
+        from core.transfer.texture import textured_glb
+
+        return Response(textured_glb(None, V, png), media_type=GLB)
     if rig:
         from core.transfer.rig import rig_glb
 
@@ -423,7 +459,8 @@ def get_body(
                 "this body is posed; rig the body it was posed from (derived_from)",
                 field="rig",
             )
-        return Response(rig_glb(V, colors=_body_colors(store, b)), media_type=GLB)
+        colors = None if png is not None else _body_colors(store, b)
+        return Response(rig_glb(V, colors=colors, texture=png), media_type=GLB)
     return _mesh_response(request, b, V, colors=_body_colors(store, b))
 
 

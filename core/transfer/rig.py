@@ -143,11 +143,18 @@ def rig_glb(
     rig: Rig | None = None,
     method: str = "regressor",
     colors: np.ndarray | None = None,
+    texture: bytes | None = None,
 ) -> bytes:
     """Skinned GLB of body ``V`` (template order, metres): mesh, normals, ``skin`` (and
-    ``COLOR_0`` from ``colors``, (13380, 3) uint8 or floats in [0, 1], if given)."""
+    ``COLOR_0`` from ``colors``, (13380, 3) uint8 or floats in [0, 1], if given; or a PNG
+    ``texture`` on the template UV layout: :func:`core.transfer.texture.textured_glb`)."""
+    sk = skin(V, rig=rig, method=method)
+    if texture is not None:
+        from core.transfer.texture import textured_glb
+
+        return textured_glb(None, V, texture, skin=sk)
     tpl = load_template()
-    return write_glb(None, V, tpl.F, colors=colors, skin=skin(V, rig=rig, method=method))
+    return write_glb(None, V, tpl.F, colors=colors, skin=sk)
 
 
 def rotations_from_vectors(rotations: Mapping[str, object]) -> dict[str, np.ndarray]:

@@ -15,12 +15,16 @@ copies follow (:class:`UVLayout`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core.template import load_asset, load_template
+
+if TYPE_CHECKING:
+    from core.io.writers import GlbSkin
 
 TEXTURE_SIZE = 1024  # pixels per side of a baked texture
 
@@ -154,6 +158,7 @@ def textured_glb(
     texture: np.ndarray | bytes,
     *,
     layout: UVLayout | None = None,
+    skin: GlbSkin | None = None,
 ) -> bytes:
     """A body's GLB carrying a texture on the template UV layout (``TEXCOORD_0`` and the
     material's ``baseColorTexture``), seam vertices split as :class:`UVLayout` says.
@@ -163,6 +168,7 @@ def textured_glb(
     path_or_none : output file, or None to only return the bytes.
     V : (13380, 3) body vertices in template order, metres.
     texture : (H, W, 3) uint8 image (e.g. :func:`bake_texture`) or PNG bytes.
+    skin : the body's skin (per body vertex); seam copies get their vertex's influences.
     """
     from core.geometry import vertex_normals
     from core.io.images import encode_png
@@ -175,8 +181,16 @@ def textured_glb(
         raise ValueError(f"V must have shape {tpl.V.shape}, got {V.shape}")
     png = bytes(texture) if isinstance(texture, bytes | bytearray) else encode_png(texture)
     N = vertex_normals(V, tpl.F)  # of the body, so seam copies share their normal
+    if skin is not None:
+        skin = replace(skin, joint_index=skin.joint_index[L.vertex], weights=skin.weights[L.vertex])
     return write_glb(
-        path_or_none, V[L.vertex], L.faces, normals=N[L.vertex], texcoords=L.uv, texture_png=png
+        path_or_none,
+        V[L.vertex],
+        L.faces,
+        normals=N[L.vertex],
+        texcoords=L.uv,
+        texture_png=png,
+        skin=skin,
     )
 
 

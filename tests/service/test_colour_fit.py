@@ -85,6 +85,32 @@ def test_coloured_scan_fit_and_body(client, tmp_path, gltf_validator):
     # an uncoloured body has no colours
     other = client.post("/v1/bodies", json={"sex": "male", "seed": 1}).json()["id"]
     assert "colors" not in client.get(f"/v1/bodies/{other}", headers=JSON).json()
+    # ... but wears the fit's texture on request: the same UV layout, the same image
+    r = client.get(f"/v1/bodies/{other}", params={"texture_from": fit_id})
+    assert r.status_code == 200 and r.headers["content-type"] == "model/gltf-binary", r.text
+    (tmp_path / "other.glb").write_bytes(r.content)
+    report = validate_glb(tmp_path / "other.glb")
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(r.content)
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    np.testing.assert_array_equal(accessor(attrs["TEXCOORD_0"]), uv)
+    V_other = np.asarray(client.get(f"/v1/bodies/{other}", headers=JSON).json()["vertices"])
+    np.testing.assert_allclose(accessor(attrs["POSITION"])[: len(tpl.V)], V_other, atol=1e-6)
+    assert png.content in r.content  # the fit's PNG, embedded as it is
+    r = client.get(f"/v1/bodies/{other}", params={"texture_from": "fit_nosuch"})
+    assert r.status_code == 404, r.text
+    r = client.get(f"/v1/bodies/{other}", params={"texture_from": fit_id, "rig": "true"})
+    assert r.status_code == 200, r.text  # skinned and textured: seam copies share the skin
+    (tmp_path / "other_rig.glb").write_bytes(r.content)
+    report = validate_glb(tmp_path / "other_rig.glb")
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(r.content)
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    joints, weights = accessor(attrs["JOINTS_0"]), accessor(attrs["WEIGHTS_0"])
+    L = load_uv_layout()
+    assert len(joints) == len(L.uv) and len(doc["skins"][0]["joints"]) == 163
+    np.testing.assert_array_equal(joints, joints[L.vertex])
+    np.testing.assert_array_equal(weights, weights[L.vertex])
 
 
 def _upload(client, name: str, data: bytes):
