@@ -36,7 +36,7 @@ from core.registration.operators import (
 )
 from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit, part_labels
 from core.registration.schedule import Schedule, Stage
-from core.registration.shape_prior import PriorOptions, fit_body_prior
+from core.registration.shape_prior import PriorOptions, arm_pose, fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
@@ -642,7 +642,11 @@ def final_report(
 
 
 RETRIES = (
-    # (name, options): tried in this order while the fit's quality is not good
+    # (name, options): tried in this order while the fit's quality is not good, each a change
+    # of the caller's options; "arm_abduction" starts the body prior's upper arms of the sides
+    # whose arm or hand is not good that far out (skipped when both arms and hands are good)
+    ("arms started 10° out", {"arm_abduction": 10.0}),
+    ("arms started 30° out", {"arm_abduction": 30.0}),
     ("markers trusted", {"marker_trust": 1.0}),
     ("lost parts weighted x4, scan→body pairs", {"part_weight": 4.0, "bidirectional": True}),
 )
@@ -695,10 +699,12 @@ def fit(
     cancels the fit (:class:`FitCancelled`).
 
     With ``retry`` (default) a fit whose quality check (``core.registration.quality``) is not
-    ``good`` is re-run with the body prior changed (:data:`RETRIES`: every marker trusted at
-    full weight; then the parts that are not good weighted ×4 with scan→body pairs), and the
-    best result is kept (verdict, then parts not good, then scan→fit p95). The report's notes
-    list the attempts; a part still lost stays in the verdict with its name.
+    ``good`` is re-run with the body prior changed (:data:`RETRIES`: the upper arms of the sides
+    whose arm or hand is not good started 10°, then 30° from the body's side — another
+    initialisation; every marker trusted at full weight; the parts that are not good weighted ×4
+    with scan→body pairs), and the best result is kept (verdict, then parts not good, then
+    scan→fit p95): at most 1 + ``len(RETRIES)`` fits. The report's notes list the
+    attempts; a part still lost stays in the verdict with its name.
     """
     options: dict[str, Any] = {
         "schedule": schedule, "template": template, "max_distance": max_distance,
@@ -719,11 +725,17 @@ def fit(
         assert bq is not None
         if bq.quality == "good":
             break
+        weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
         o = dict(options)
-        if "part_weight" in opt:
-            weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
+        po = PriorOptions.of(o.get("prior_options"))
+        if "arm_abduction" in opt:
+            sides = "".join(x for x in "LR" if f"arm_{x}" in weak or f"hand_{x}" in weak)
+            if not sides:
+                continue
+            pose = {**(po.initial_pose or {}), **arm_pose(opt["arm_abduction"], sides)}
+            o["prior_options"] = replace(po, initial_pose=pose)
+        elif "part_weight" in opt:
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            po = PriorOptions.of(o.get("prior_options"))
             o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
         else:
             o.update(opt)

@@ -235,3 +235,16 @@ def test_arm_bones_prior_keeps_the_hands_of_a_real_world_case(tmp_path):
     off = _hand_offsets(res.vertices, truth)
     assert max(off.values()) < 0.05, off
     assert q.parts["hand_L"].quality != "failed" and q.parts["hand_R"].quality != "failed"
+
+
+def test_lost_hand_is_retried_from_another_arm_start_and_recovered(tmp_path):
+    # cloud seed 6 (arms 9° out): even with the arm bones' prior the first fast fit puts the left
+    # hand 16 cm off the truth (the upper arm, started at the template's 40°, swings onto the
+    # thigh's data) and fails; the retry that starts that arm 10° out brings it back
+    scan, markers, truth = _real_world_case(tmp_path, "cloud", 6)
+    res = fit(scan, markers, schedule=Schedule.fast())
+    note = res.report.notes[-1]
+    assert note.startswith("quality retries: first fit: failed; arms started 10° out: "), note
+    q = res.report.quality
+    assert _hand_offsets(res.vertices, truth)["hand_L"] < 0.05
+    assert q.quality != "failed" and q.parts["hand_L"].quality != "failed", q.reasons
