@@ -8,6 +8,23 @@ import numpy as np
 
 
 @dataclass
+class ScanTexture:
+    """A scan's texture mapping, per triangle corner (as read; finer than its vertex colours).
+
+    Attributes
+    ----------
+    uv : (m, 3, 2) float32 texture coordinates of each triangle's corners (glTF convention:
+        origin at the image's top-left), aligned with the mesh's ``F``.
+    image : (m,) int16 index into ``images`` per triangle, -1 where a triangle has none.
+    images : decoded (H, W, 3) uint8 RGB images.
+    """
+
+    uv: np.ndarray
+    image: np.ndarray
+    images: list[np.ndarray]
+
+
+@dataclass
 class RawMesh:
     """A mesh or point cloud as read from a file, in the file's own units and axes.
 
@@ -18,6 +35,7 @@ class RawMesh:
     normals : (n, 3) float64 unit vertex normals, or None when the file has none.
     confidence : (n,) float64 per-vertex confidence in [0, 1], or None when the file has none.
     colors : (n, 3) uint8 RGB, or None.
+    texture : the texture mapping of a textured OBJ or GLB (aligned with ``F``), or None.
     """
 
     V: np.ndarray
@@ -25,6 +43,7 @@ class RawMesh:
     normals: np.ndarray | None = None
     confidence: np.ndarray | None = None
     colors: np.ndarray | None = None
+    texture: ScanTexture | None = None
 
 
 @dataclass
@@ -75,6 +94,7 @@ class Scan:
     colors : (n, 3) uint8 RGB per point, or None (the file had no colours).
     removed : points of the file left out as not the body (``core.io.clean``), by kind:
         ``{"floor_points": n, "stray_points": m}``; empty when the scan was not prepared.
+    textured : the scan's textured surface as read, for a textured OBJ/GLB (else None).
     """
 
     V: np.ndarray
@@ -86,3 +106,21 @@ class Scan:
     notes: list[str] = field(default_factory=list)
     colors: np.ndarray | None = None
     removed: dict[str, int] = field(default_factory=dict)
+    textured: TexturedSurface | None = None
+
+
+@dataclass
+class TexturedSurface:
+    """A textured scan's surface as read (before cleaning), in the canonical frame: what
+    :func:`core.transfer.texture.transfer_texture` samples at full texture resolution. Set by
+    the scan loaders beside the prepared scan (``Scan.textured``), not by preparation.
+
+    Attributes
+    ----------
+    V : (n, 3) float64 vertices, metres, +Y up. F : (m, 3) int64 triangles.
+    texture : their corners' texture mapping.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    texture: ScanTexture

@@ -177,6 +177,12 @@ def run_fit(
 
     t0 = time.perf_counter()
     scan, markers = load_scan(scan_path, units=units, up=up, markers_path=markers_path)
+    if scan.colors is not None and Path(scan_path).suffix.lower() in (".obj", ".glb", ".zip"):
+        from core.io import read_mesh
+        from core.transfer.texture import textured_surface
+
+        # a textured scan: its surface as read, for the texture at full resolution
+        scan.textured = textured_surface(read_mesh(scan_path), scan.frame)
     t_load = time.perf_counter() - t0
     schedule = "fast" if fast else schedule
     options = preset(schedule)
@@ -230,7 +236,9 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
             # baked on the template UV layout: a textured GLB, or OBJ + MTL + PNG
             from core.transfer.texture import bake_texture, textured_glb, write_textured_obj
 
-            texture = bake_texture(colors) if texture is None else texture
+            if texture is None:  # from a textured scan, else the vertex colours baked
+                texture = getattr(result, "texture", None)
+                texture = bake_texture(colors) if texture is None else texture
             if out.suffix.lower() == ".glb":
                 textured_glb(out, result.vertices, texture)
             else:

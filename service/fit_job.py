@@ -170,6 +170,9 @@ def _load_inputs(
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in (markers_file or {}).items()}
     frame = detect_frame(raw.V, units=scan.units, up=scan.up, markers=markers or None)
     prepared = prepare_scan(raw, frame)
+    from core.transfer.texture import textured_surface
+
+    prepared.textured = textured_surface(raw, frame)  # a textured scan, as read
     how_u = "detected" if scan.units == "auto" else "given"
     how_up = "detected" if scan.up == "auto" else "given"
     prepared.notes.insert(0, f"units {frame.units} ({how_u}), up axis {frame.up} ({how_up})")
@@ -332,7 +335,8 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             if colors is None:
                 write_glb(files["glb"], V, F)
             else:  # the colours baked on the template UV layout: a textured GLB and its PNG
-                png = encode_png(bake_texture(colors))
+                texture = getattr(result, "texture", None)  # from a textured scan
+                png = encode_png(bake_texture(colors) if texture is None else texture)
                 textured_glb(files["glb"], V, png)
                 files["png"].write_bytes(png)
                 report["texture"] = {"format": "png", "size_px": TEXTURE_SIZE, "uv": "template"}

@@ -37,7 +37,7 @@ import numpy as np
 
 from core.errors import InputFormatError
 from core.io.images import MAX_TEXTURE_PIXELS
-from core.scan import RawMesh
+from core.scan import RawMesh, ScanTexture
 
 Source = str | os.PathLike | bytes | bytearray | memoryview
 
@@ -723,6 +723,7 @@ def _read_obj(
 
     F = None
     normals = None
+    texture = None
     if f_lines:
         ftok = _tokens_per_line(f_lines)
         block = b"\n".join(f_lines)
@@ -770,10 +771,20 @@ def _read_obj(
                         if not np.allclose(chk, vn[ni]) or len(np.unique(vi)) != nv:
                             normals = None
         if files is not None and np.all((vi >= 0) & (vi < nv)):
-            tex = _obj_material_colours(data, block, ftok, vi, nv, files, strict, what, max_pixels)
-            colors = colors if tex is None else tex
+            tex, texture = _obj_material_colours(
+                data, block, ftok, vi, nv, files, strict, what, max_pixels
+            )
+            if tex is not None:
+                colors = tex
+            if texture is not None:  # per triangle of the fan, as F below
+                tri = _fan(ftok, np.arange(len(vi)))
+                corner_uv, corner_img, texture_images = texture
+                img_idx = corner_img[tri[:, 0]].astype(np.int16)
+                uv = corner_uv[tri].astype(np.float32)
+                img_idx[~np.isfinite(uv).all(axis=(1, 2))] = -1
+                texture = ScanTexture(uv=uv, image=img_idx, images=texture_images)
         F = _fan(ftok, vi)
-    return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors), what)
+    return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors, texture=texture), what)
 
 
 # --------------------------------------------------------------------------------------------
@@ -860,8 +871,10 @@ def _obj_material_colours(
     strict: bool,
     what: str,
     max_pixels: int,
-) -> np.ndarray | None:
-    """(nv, 3) uint8 vertex colours from the OBJ's materials, or None (no usable material).
+) -> tuple[np.ndarray | None, tuple | None]:
+    """(nv, 3) uint8 vertex colours from the OBJ's materials, or None (no usable material),
+    and the corners' texture mapping ((c, 2) glTF UVs, NaN where none; (c,) image index, -1
+    where none; the images), or None without a texture.
 
     Each face corner takes its material's ``map_Kd`` texture at the corner's ``vt`` (bilinear;
     ``Kd`` is not multiplied in, as most viewers do) or, without a texture, its ``Kd``; a vertex
@@ -872,7 +885,7 @@ def _obj_material_colours(
 
     libs = [m.strip().decode("utf-8", "replace") for m in _OBJ_MTLLIB.findall(data)]
     if not libs:
-        return None
+        return None, None
     materials: dict[str, tuple[np.ndarray | None, str | None]] = {}
     for lib in libs:
         text = files(lib)
@@ -884,7 +897,7 @@ def _obj_material_colours(
         materials.update(_mtl_materials(text))
     use = _OBJ_USEMTL.findall(data)
     if not materials or not use:
-        return None
+        return None, None
     names = [u.strip().decode("utf-8", "replace") for u in use]
     u_pos = np.array([m.start() for m in _OBJ_USEMTL.finditer(data)])
     f_pos = np.array([m.start() for m in _OBJ_F.finditer(data)])
@@ -899,6 +912,9 @@ def _obj_material_colours(
     acc = np.zeros((nv, 3))
     cnt = np.zeros(nv)
     budget = max_pixels
+    corner_uv = np.full((len(vi), 2), np.nan)
+    corner_img = np.full(len(vi), -1, dtype=np.int64)
+    images: list[np.ndarray] = []
     for m, mname in enumerate(names):
         corners = np.flatnonzero(corner_mat == m)
         if mname not in materials or not len(corners):
@@ -921,6 +937,9 @@ def _obj_material_colours(
                 corners = corners[ok]
                 uv = uvs[t[ok]] * [1.0, -1.0] + [0.0, 1.0]  # OBJ v up -> glTF v down
                 rgb = sample_image(img, uv)
+                corner_uv[corners] = uv
+                corner_img[corners] = len(images)
+                images.append(img)
         if rgb is None and kd is not None:
             rgb = np.broadcast_to(kd, (len(corners), 3))
         if rgb is None:
@@ -930,11 +949,12 @@ def _obj_material_colours(
             acc[:, c] += np.bincount(v, weights=rgb[:, c], minlength=nv)
         cnt += np.bincount(v, minlength=nv)
     if not cnt.any():
-        return None
+        return None, None
     has = cnt > 0
     acc[has] /= cnt[has, None]
     acc[~has] = acc[has].mean(axis=0)
-    return np.clip(np.round(acc * 255.0), 0, 255).astype(np.uint8)
+    texture = (corner_uv, corner_img, images) if images else None
+    return np.clip(np.round(acc * 255.0), 0, 255).astype(np.uint8), texture
 
 
 def _folder_files(folder: Path) -> Files:
@@ -1086,16 +1106,15 @@ def _read_glb(
 
     prims = read_glb_primitives(data, what, max_vertices=max_vertices, max_faces=max_faces)
     coloured = any(p.image is not None or p.colors is not None for p in prims)
-    Vs, Fs, Ns, Cs = [], [], [], []
+    Vs, Fs, Ns, Cs, UVs, Is = [], [], [], [], [], []
     off = 0
     budget = max_pixels
     images: dict[bytes, np.ndarray] = {}
     for p in prims:
         n = len(p.V)
         Vs.append(p.V)
-        if p.F is not None:
-            Fs.append(p.F + off)
         Ns.append(p.normals)
+        k = -1  # the primitive's image in the texture mapping (plain textures only)
         if coloured:
             c = np.ones((n, 3)) if p.colors is None else p.colors
             if p.image is not None:
@@ -1104,15 +1123,24 @@ def _read_glb(
                                                    max_pixels=budget)  # fmt: skip
                     budget -= images[p.image].shape[0] * images[p.image].shape[1]
                 c = c * sample_image(images[p.image], p.uv)
+                if p.colors is None and np.all(p.factor == 1.0):
+                    k = list(images).index(p.image)
             Cs.append(c * p.factor)
+        if p.F is not None:
+            Fs.append(p.F + off)
+            UVs.append(p.uv[p.F] if k >= 0 else np.zeros((len(p.F), 3, 2)))
+            Is.append(np.full(len(p.F), k, dtype=np.int16))
         off += n
     V = np.concatenate(Vs)
     F = np.concatenate(Fs) if Fs else None
     normals = np.concatenate(Ns) if all(x is not None for x in Ns) else None
-    colors = None
+    colors = texture = None
     if coloured:
         colors = np.clip(np.round(np.concatenate(Cs) * 255.0), 0, 255).astype(np.uint8)
-    return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors), what)
+    if F is not None and any((i >= 0).any() for i in Is):
+        uv = np.concatenate(UVs).astype(np.float32)
+        texture = ScanTexture(uv=uv, image=np.concatenate(Is), images=list(images.values()))
+    return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors, texture=texture), what)
 
 
 # --------------------------------------------------------------------------------------------

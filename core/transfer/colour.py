@@ -22,7 +22,7 @@ from core.scan import Scan
 from core.template import load_template
 
 
-def _barycentric(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+def barycentric(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
     """(..., 3) barycentric coordinates of P's projection onto triangles ABC (clamped >= 0,
     renormalised; degenerate triangles give equal weights)."""
     v0, v1, v2 = B - A, C - A, P - A
@@ -61,7 +61,7 @@ def _sample_triangles(scan: Scan, colors: np.ndarray, X: np.ndarray, pid: np.nda
     off = np.minimum(np.arange(dmax)[None, :], deg[p][:, None] - 1)
     faces = inc.indices[starts[:, None] + off]  # (r, dmax)
     T = scan.V[F[faces]]  # (r, dmax, 3 corners, 3)
-    L = _barycentric(X[rows][:, None, :], T[:, :, 0], T[:, :, 1], T[:, :, 2])
+    L = barycentric(X[rows][:, None, :], T[:, :, 0], T[:, :, 1], T[:, :, 2])
     inside = L.min(axis=-1)  # >= 0 where the projection falls inside the triangle
     Lc = np.clip(L, 0.0, None)
     Lc /= Lc.sum(axis=-1, keepdims=True)
@@ -115,7 +115,10 @@ def harmonic_fill(values: np.ndarray, known: np.ndarray, edges: np.ndarray) -> n
 
 def colour_fit(result: Any, scan: Scan) -> None:
     """Give a fit result (``FitResult``) the colours of its scan, if the scan has any:
-    sets ``result.colors`` and adds a report note (share of vertices filled)."""
+    sets ``result.colors`` and adds a report note (share of vertices filled). For a textured
+    scan (``scan.textured``) also ``result.texture``: the (1024, 1024, 3) uint8 texture on the
+    template UV layout taken from the scan's texture at full resolution
+    (:func:`core.transfer.texture.transfer_texture`; the per-vertex colours fill the rest)."""
     if scan.colors is None:
         return
     colours, observed = transfer_colours(result.vertices, scan, F=result.faces)
@@ -124,6 +127,16 @@ def colour_fit(result: Any, scan: Scan) -> None:
         f"colours from the scan; {100 * (1 - observed.mean()):.1f} % of vertices had no scan "
         "colour within 1 cm and were filled smoothly"
     )
+    if getattr(scan, "textured", None) is not None:
+        from core.transfer.texture import bake_texture, transfer_texture
+
+        result.texture, share = transfer_texture(
+            result.vertices, scan.textured, bake_texture(colours)
+        )
+        result.report.notes.append(
+            f"texture from the scan's texture at full resolution on {100 * share:.1f} % of "
+            "the body's texels (the rest from the vertex colours)"
+        )
 
 
 def transfer_colours(

@@ -25,6 +25,7 @@ from core.template import load_asset, load_template
 
 if TYPE_CHECKING:
     from core.io.writers import GlbSkin
+    from core.scan import FrameInfo, RawMesh, TexturedSurface
 
 TEXTURE_SIZE = 1024  # pixels per side of a baked texture
 
@@ -217,3 +218,102 @@ def write_textured_obj(path, V: np.ndarray, texture: np.ndarray | bytes) -> None
     atomic_write(path.with_suffix(".png"), png)
     atomic_write(path.with_suffix(".mtl"), mtl.encode("utf-8"))
     write_obj(path, V, tpl.F, uv=L.uv, FT=L.faces, mtllib=f"{path.stem}.mtl")
+
+
+def textured_surface(raw: RawMesh, frame: FrameInfo) -> TexturedSurface | None:
+    """The textured surface of a raw scan (read with its texture mapping) in the canonical
+    frame, for :func:`transfer_texture`; None when the scan has no texture or no triangles."""
+    from core.scan import TexturedSurface
+
+    if raw.texture is None or raw.F is None or not (raw.texture.image >= 0).any():
+        return None
+    return TexturedSurface(V=frame.to_canonical(raw.V), F=raw.F, texture=raw.texture)
+
+
+def transfer_texture(
+    V: np.ndarray,
+    surface: TexturedSurface,
+    fallback: np.ndarray,
+    *,
+    max_distance: float = 0.01,
+    max_angle_deg: float = 60.0,
+    dilate: int = 8,
+    layout: UVLayout | None = None,
+) -> tuple[np.ndarray, float]:
+    """A body's texture taken from a textured scan at full texture resolution.
+
+    Every texel of the template UV layout is a point on the fitted body (its UV triangle's
+    corners interpolated); it takes the scan texture's colour at the closest scan surface point
+    within ``max_distance`` whose triangle faces within ``max_angle_deg`` of the body's normal
+    (either side: a raw scan's winding is not trusted), sampled at that point's interpolated
+    UVs. Texels with no such point (holes, untextured triangles) keep ``fallback``'s colour
+    (the per-vertex transfer baked: :func:`bake_texture`); then the islands are dilated.
+
+    Parameters
+    ----------
+    V : (13380, 3) fitted body, template order, canonical frame (metres).
+    surface : the scan's textured surface (:func:`textured_surface`), same frame.
+    fallback : (S, S, 3) uint8 texture on the layout; its size is the result's.
+
+    Returns
+    -------
+    image : (S, S, 3) uint8 texture on the template UV layout.
+    share : fraction of the covered texels that took the scan's texture.
+    """
+    from scipy.spatial import cKDTree
+
+    from core.geometry import closest_point_on_triangles, face_normals, normalize, vertex_normals
+    from core.io.images import sample_image
+    from core.transfer.colour import barycentric
+
+    L = load_uv_layout() if layout is None else layout
+    size = fallback.shape[0]
+    tpl = load_template()
+    V = np.asarray(V, dtype=np.float64)
+    N = vertex_normals(V, tpl.F)
+    P = L.uv.astype(np.float64) * size
+    img6, covered = _rasterise(P, L.faces.astype(np.int64), np.hstack([V, N])[L.vertex], size)
+    X = img6[covered][:, :3]
+    n = normalize(img6[covered][:, 3:])
+    tex = surface.texture
+    tri = np.flatnonzero(tex.image >= 0)
+    T = surface.V[surface.F[tri]]  # (t, 3 corners, 3)
+    FN = normalize(face_normals(surface.V, surface.F[tri]))
+    centre = T.mean(axis=1)
+    reach = max_distance + min(float(np.linalg.norm(T - centre[:, None], axis=2).max()), 0.05)
+    tree = cKDTree(centre)
+    cos_lim = np.cos(np.deg2rad(max_angle_deg))
+    out = fallback[covered].astype(np.float64) / 255.0
+    matched = np.zeros(len(X), dtype=bool)
+    k = min(8, len(tri))
+    for s in range(0, len(X), 65536):
+        Xc, nc = X[s : s + 65536], n[s : s + 65536]
+        d, j = tree.query(Xc, k=k, distance_upper_bound=reach, workers=-1)
+        d, j = d.reshape(len(Xc), k), j.reshape(len(Xc), k)
+        ok = np.isfinite(d)
+        jj = np.where(ok, j, 0)
+        A, B, C = T[jj, 0], T[jj, 1], T[jj, 2]  # (c, k, 3)
+        Xr = np.broadcast_to(Xc[:, None], A.shape)
+        Q = closest_point_on_triangles(*(a.reshape(-1, 3) for a in (Xr, A, B, C)))
+        Q = Q.reshape(A.shape)
+        dist = np.linalg.norm(Q - Xc[:, None], axis=2)
+        facing = np.abs(np.einsum("ckd,cd->ck", FN[jj], nc)) >= cos_lim
+        ok &= facing & (dist <= max_distance)
+        best = np.argmin(np.where(ok, dist, np.inf), axis=1)
+        rows = np.flatnonzero(ok.any(axis=1))
+        if not len(rows):
+            continue
+        t = jj[rows, best[rows]]
+        r = rows, best[rows]
+        lam = barycentric(Q[r], A[r], B[r], C[r])  # (q, 3)
+        uv = np.einsum("qc,qcd->qd", lam, tex.uv[tri[t]].astype(np.float64))
+        img_of = tex.image[tri[t]]
+        for i in np.unique(img_of):
+            sel = img_of == i
+            out[s + rows[sel]] = sample_image(tex.images[int(i)], uv[sel])
+        matched[s + rows] = True
+    full = np.zeros(fallback.shape)
+    full[covered] = out
+    full = _dilate(full, covered, dilate)
+    image = np.clip(np.round(full * 255.0), 0, 255).astype(np.uint8)
+    return image, float(matched.mean()) if len(matched) else 0.0

@@ -275,3 +275,79 @@ def test_textured_obj_scan_colours_reach_the_fitted_body(textured_scan_fit):
     assert unseen.sum() > 200 and (~observed[unseen]).mean() > 0.5
     assert err[~unseen].mean() < 0.05, err[~unseen].mean()
     assert err[unseen].mean() < 0.15, err[unseen].mean()
+
+
+def _stripes(size: int, period_m: float) -> np.ndarray:
+    """(size, size, 3) uint8: red stripes across image rows, for the cylindrical atlas below
+    (row -> height y = 2 (1 - v) m): red = 0.5 + 0.4 sin(2 pi y / period), green/blue 0.5."""
+    v = (np.arange(size) + 0.5) / size
+    red = 0.5 + 0.4 * np.sin(2 * np.pi * (1 - v) * 2.0 / period_m)
+    img = np.full((size, size, 3), 0.5)
+    img[..., 0] = red[:, None]
+    return np.round(img * 255).astype(np.uint8)
+
+
+def test_texture_at_full_resolution_from_a_textured_scan(tmp_path):
+    """A scan whose texture holds stripes finer than the body's vertex spacing (1.2-4 cm): the
+    body's texture taken texel by texel from the scan's texture keeps them; the per-vertex
+    colours baked cannot."""
+    from core.scan import FrameInfo
+    from core.transfer.texture import _rasterise, textured_surface, transfer_texture
+
+    tpl, L = load_template(), load_uv_layout()
+    # 1. the scan is the template itself (UVs of the layout, a 2048 px texture of stripes in
+    #    UV space): the transfer must reproduce the scan's texture texel for texel
+    S = 2048
+    yy, xx = np.mgrid[0:S, 0:S]
+    img = np.full((S, S, 3), 128, np.uint8)
+    img[..., 0] = np.where((xx // 6) % 2 == 0, 220, 40)
+    img[..., 1] = np.where((yy // 6) % 2 == 0, 200, 60)
+    vt = L.uv.astype(np.float64) * [1.0, -1.0] + [0.0, 1.0]
+    raw = read_mesh(
+        _zip({"s.obj": _obj_text(tpl.V, vt, tpl.F, L.faces), "scan.mtl": MTL,
+              "skin.png": encode_png(img)}), "zip",
+    )  # fmt: skip
+    assert raw.texture is not None and raw.texture.uv.shape == (len(tpl.F), 3, 2)
+    frame = FrameInfo(units="m", up="+y", scale=1.0, R=np.eye(3), detected=False)
+    fallback = bake_texture(raw.colors[: len(tpl.V)])
+    out, share = transfer_texture(tpl.V, textured_surface(raw, frame), fallback)
+    size = out.shape[0]
+    i, j = np.mgrid[0:size, 0:size]
+    uv = np.stack([(j + 0.5) / size, (i + 0.5) / size], axis=-1).reshape(-1, 2)
+    _, covered = _rasterise(L.uv * float(size), L.faces.astype(np.int64),
+                            np.ones((len(L.uv), 1)), size)  # fmt: skip
+    from core.io.images import sample_image
+
+    truth = sample_image(img, uv).reshape(size, size, 3)[covered]
+    err = np.abs(out[covered] / 255.0 - truth).mean()
+    err_vertex = np.abs(fallback[covered] / 255.0 - truth).mean()
+    assert share > 0.999 and err < 0.005 and err_vertex > 0.15, (share, err, err_vertex)
+    # 2. a simulated scan of a body (holes, noise) with a cylindrical atlas (v = 1 - y / 2)
+    #    and 4 cm stripes, fitted: per texel against the true body's stripes
+    rng = np.random.default_rng(7)
+    body = random_body(rng, sex="female")
+    sim = simulate_scan(body.V, tpl.F, rng, config=ScanConfig.small())
+    x, y, z = sim.V_scan.T
+    uv_scan = np.stack([np.arctan2(x, z) / (2 * np.pi) + 0.5, 1 - y / 2.0], axis=1)
+    from core.io.writers import write_obj
+
+    write_obj(tmp_path / "scan.obj", sim.V_scan, sim.F_scan, uv=uv_scan, FT=sim.F_scan,
+              mtllib="scan.mtl")  # fmt: skip
+    (tmp_path / "scan.mtl").write_bytes(MTL)
+    (tmp_path / "skin.png").write_bytes(encode_png(_stripes(2048, 0.04)))
+    write_markers_csv(tmp_path / "m.csv", sim.markers)
+    scan, markers = load_scan(tmp_path / "scan.obj", markers_path=tmp_path / "m.csv")
+    res = fit(scan, markers, schedule=Schedule.fast())
+    colours, _ = transfer_colours(res.vertices, scan)
+    fallback = bake_texture(colours)
+    surface = textured_surface(read_mesh(tmp_path / "scan.obj"), scan.frame)
+    out, share = transfer_texture(res.vertices, surface, fallback)
+    body_at, covered = _rasterise(L.uv * 1024.0, L.faces.astype(np.int64), body.V[L.vertex], 1024)
+    fit_at, _ = _rasterise(L.uv * 1024.0, L.faces.astype(np.int64), res.vertices[L.vertex], 1024)
+    from scipy.spatial import cKDTree
+
+    seen = cKDTree(sim.V_scan).query(fit_at[covered])[0] < 0.005
+    truth = 0.5 + 0.4 * np.sin(2 * np.pi * body_at[covered][:, 1] / 0.04)
+    err = np.abs(out[covered][:, 0] / 255.0 - truth)[seen].mean() / 0.8
+    err_vertex = np.abs(fallback[covered][:, 0] / 255.0 - truth)[seen].mean() / 0.8
+    assert share > 0.85 and err < 0.11 and err < 0.6 * err_vertex, (share, err, err_vertex)

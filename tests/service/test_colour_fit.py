@@ -150,6 +150,8 @@ def test_textured_uploads(client, tmp_path):
     png = client.get(f"/v1/fits/{fit_id}/result", params={"format": "png"}).content
     rgb = sample_image(decode_image(png), L.uv[: len(tpl.V)])
     assert np.abs(rgb - C).mean() / 0.8 < 0.05, np.abs(rgb - C).mean() / 0.8
+    notes = client.get(f"/v1/fits/{fit_id}/result", params={"format": "json"}).json()["notes"]
+    assert any("at full resolution" in n for n in notes), notes  # texel by texel
     glb = textured_glb(None, tpl.V, img)
     r = _upload(client, "body.glb", glb)
     assert r.status_code == 201, r.text
