@@ -277,10 +277,11 @@ def transfer_texture(
     n = normalize(img6[covered][:, 3:])
     tex = surface.texture
     tri = np.flatnonzero(tex.image >= 0)
-    T = surface.V[surface.F[tri]]  # (t, 3 corners, 3)
-    FN = normalize(face_normals(surface.V, surface.F[tri]))
-    centre = T.mean(axis=1)
-    reach = max_distance + min(float(np.linalg.norm(T - centre[:, None], axis=2).max()), 0.05)
+    SV, SF = surface.V, surface.F[tri]  # corners gathered per chunk, never (t, 3, 3) at once
+    FN = normalize(face_normals(SV, SF))
+    centre = (SV[SF[:, 0]] + SV[SF[:, 1]] + SV[SF[:, 2]]) / 3.0
+    radius = max(float(np.linalg.norm(SV[SF[:, c]] - centre, axis=1).max()) for c in range(3))
+    reach = max_distance + min(radius, 0.05)
     tree = cKDTree(centre)
     cos_lim = np.cos(np.deg2rad(max_angle_deg))
     out = fallback[covered].astype(np.float64) / 255.0
@@ -292,7 +293,7 @@ def transfer_texture(
         d, j = d.reshape(len(Xc), k), j.reshape(len(Xc), k)
         ok = np.isfinite(d)
         jj = np.where(ok, j, 0)
-        A, B, C = T[jj, 0], T[jj, 1], T[jj, 2]  # (c, k, 3)
+        A, B, C = (SV[SF[jj, c]] for c in range(3))  # (chunk, k, 3)
         Xr = np.broadcast_to(Xc[:, None], A.shape)
         Q = closest_point_on_triangles(*(a.reshape(-1, 3) for a in (Xr, A, B, C)))
         Q = Q.reshape(A.shape)
