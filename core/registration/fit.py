@@ -643,8 +643,9 @@ def final_report(
 
 RETRIES = (
     # (name, options): tried in this order while the fit's quality is not good, each a change
-    # of the caller's options; "arm_abduction" starts the body prior's upper arms of the sides
-    # whose arm or hand is not good that far out (skipped when both arms and hands are good)
+    # of the caller's options from the body-prior start (initial_pose) of the best attempt so
+    # far; "arm_abduction" starts the body prior's upper arms of the sides whose arm or hand is
+    # not good that far out (skipped when both arms and hands are good)
     ("arms started 10° out", {"arm_abduction": 10.0}),
     ("arms started 30° out", {"arm_abduction": 30.0}),
     ("markers trusted", {"marker_trust": 1.0}),
@@ -701,8 +702,9 @@ def fit(
     With ``retry`` (default) a fit whose quality check (``core.registration.quality``) is not
     ``good`` is re-run with the body prior changed (:data:`RETRIES`: the upper arms of the sides
     whose arm or hand is not good started 10°, then 30° from the body's side — another
-    initialisation; every marker trusted at full weight; the parts that are not good weighted ×4
-    with scan→body pairs), and the best result is kept (verdict, then parts not good, then
+    initialisation, kept for the later retries when it was better; every marker trusted at full
+    weight; the parts that are not good weighted ×4 with scan→body pairs), and the best result
+    is kept (verdict, then parts not good, then
     scan→fit p95): at most 1 + ``len(RETRIES)`` fits. The report's notes list the
     attempts; a part still lost stays in the verdict with its name.
     """
@@ -720,6 +722,7 @@ def fit(
         return res
     attempts = [f"first fit: {q.quality}"]
     best = res
+    start = PriorOptions.of(prior_options).initial_pose  # the best attempt's body-prior start
     for name, opt in RETRIES:
         bq = best.report.quality
         assert bq is not None
@@ -727,7 +730,8 @@ def fit(
             break
         weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
         o = dict(options)
-        po = PriorOptions.of(o.get("prior_options"))
+        po = replace(PriorOptions.of(o.get("prior_options")), initial_pose=start)
+        o["prior_options"] = po
         if "arm_abduction" in opt:
             sides = "".join(x for x in "LR" if f"arm_{x}" in weak or f"hand_{x}" in weak)
             if not sides:
@@ -743,7 +747,7 @@ def fit(
         rq = r.report.quality
         attempts.append(f"{name}: {rq.quality if rq else 'n/a'}")
         if _score(r) < _score(best):
-            best = r
+            best, start = r, PriorOptions.of(o["prior_options"]).initial_pose
     best.report.notes.append(
         "quality retries: " + "; ".join(attempts) + f" (kept: {best.report.quality.quality})"
     )
