@@ -269,8 +269,13 @@ def summary_lines(result: Any, info: dict) -> list[str]:
         f"fitted {Path(info['inputs']['scan']).name} in {t['total']:.1f} s "
         f"(load {t['load']:.1f} s, fit {t['fit']:.1f} s, write {t['write']:.1f} s; "
         f"{info['schedule']} schedule)",
-        f"  scan: {r.scan_vertices:,} points, {r.scan_faces:,} triangles; "
-        f"units {fr['units']}, up {fr['up']} ({how})",
+        f"  scan: {r.scan_vertices:,} points, {r.scan_faces:,} triangles"
+        + (
+            f" (kept; {sum(r.removed.values()):,} removed as not the body)"
+            if any(r.removed.values())
+            else ""
+        )
+        + f"; units {fr['units']}, up {fr['up']} ({how})",
         f"  scan->fit distance: mean {_mm(r.scan_to_fit_mean_m)}, p95 {_mm(r.scan_to_fit_p95_m)}; "
         f"template vertices without scan data: {r.no_data_fraction * 100:.1f} %",
     ]

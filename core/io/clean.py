@@ -27,8 +27,9 @@ the vertical is tried for the floor, as an auto-detected up axis may be upside d
   :data:`STRAY_MAX_SHARE` of the points (a head, ~8 %, is never one); a body part separated
   from the rest by less than the gap is never one.
 
-Nothing is removed when the body that would remain holds less than :data:`MIN_KEPT_SHARE` of the
-points (the scan is then not mostly a body; ``core.matching.body_check`` says so).
+No floor is removed when what would remain is less than :data:`MIN_KEPT_HEIGHT` tall or holds
+fewer than :data:`MIN_KEPT_POINTS` points (a floor without a body: ``core.matching.body_check``
+refuses it); a body on a floor of many more points than its own is cleaned.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ STRAY_VOXEL = 0.01  # m; clustering grid
 STRAY_GAP = 0.03  # m; voxel centres closer than this are linked; a stray cluster's points are
 # all at least this far from the main body's
 STRAY_MAX_SHARE = 0.05  # clusters apart from the main body hold at most this share: stray
-MIN_KEPT_SHARE = 0.2  # never keep less than this share of the points
+MIN_KEPT_HEIGHT = 0.5  # m; what remains of a scan without its floor is at least this tall...
+MIN_KEPT_POINTS = 100  # ...and has at least this many points
 
 
 @dataclass
@@ -210,7 +212,8 @@ def non_body_points(V: np.ndarray) -> NonBody:
         got = _floor_at(V, sign)
         if got is not None and (best is None or got[0].sum() > best[0].sum()):
             best = (*got, end)
-    if best is not None and (n - best[0].sum()) >= MIN_KEPT_SHARE * n:
+    left = None if best is None else V[~best[0], 1]
+    if left is not None and len(left) >= MIN_KEPT_POINTS and np.ptp(left) >= MIN_KEPT_HEIGHT:
         out.floor, out.floor_level_m, out.floor_end = best
     rest = np.flatnonzero(~out.floor)
     if len(rest) >= 100:

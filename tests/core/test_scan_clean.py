@@ -106,6 +106,18 @@ def test_a_disc_under_a_simulated_body_is_removed_and_reported(small):
     assert any(w.startswith("removed from the scan as not the body") for w in rep["warnings"])
     assert rep["scan_to_fit_p95_m"] < 0.01
     assert "foot" not in " ".join(res.report.quality.reasons)
+    from service.cli import summary_lines
+
+    info = {
+        "timing_s": {"total": 1.0, "load": 0.1, "fit": 0.8, "write": 0.1},
+        "schedule": "fast",
+        "frame": {"units": "m", "up": "+y"},
+        "inputs": {"scan": "s.ply"},
+        "outputs": [],
+    }
+    text = "\n".join(summary_lines(res, info))
+    assert f"{len(scan.V):,} points, 0 triangles (kept; {nb.floor.sum():,} removed as not" in text
+    assert "warning: removed from the scan as not the body" in text
 
 
 def test_flat_cut_soles_without_a_plate_lose_nothing():
@@ -138,3 +150,26 @@ def test_a_hand_that_is_a_separate_component_is_kept(small):
     nb = non_body_points(m.V)
     assert nb.counts == {"floor_points": 0, "stray_points": 0}
     assert nb.keep[h].all()
+
+
+def test_a_body_on_a_large_floor_is_cleaned_a_floor_alone_is_left_alone(small):
+    """A floor of more points than the body's under it goes; a floor with nothing (or a 30 cm box)
+    standing on it is not a scan to clean (``core.matching.body_check`` refuses it): nothing is
+    removed."""
+    g = np.arange(-1.0, 1.0, 0.01)
+    X, Z = (a.ravel() for a in np.meshgrid(g, g))
+    sole = small.scan.V[:, 1].min()
+    floor = np.c_[X, np.full(len(X), sole - 0.002), Z]
+    assert len(floor) > 1.5 * len(small.scan.V)
+    nb = non_body_points(np.vstack([small.scan.V, floor]))
+    assert nb.floor[len(small.scan.V) :].all()
+    body, _ = non_body_labels(small.scan.V, small.truth)
+    assert (~nb.keep[: len(small.scan.V)])[body].mean() < 0.005
+    assert non_body_points(floor).counts == {"floor_points": 0, "stray_points": 0}
+    u = np.linspace(-0.15, 0.15, 31)
+    A, B = (a.ravel() for a in np.meshgrid(u, u))
+    box = np.vstack([np.c_[A, B + 0.15, np.full_like(A, z)] for z in (-0.15, 0.15)]
+                    + [np.c_[np.full_like(A, x), B + 0.15, A] for x in (-0.15, 0.15)]
+                    + [np.c_[A, np.full_like(A, 0.3), B]])  # fmt: skip
+    box[:, 1] += sole - 0.002  # a 30 cm box on the floor: no body
+    assert non_body_points(np.vstack([floor, box])).counts == {"floor_points": 0, "stray_points": 0}
