@@ -237,7 +237,7 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
             from core.transfer.texture import bake_texture, textured_glb, write_textured_obj
 
             if texture is None:  # from a textured scan, else the vertex colours baked
-                texture = getattr(result, "texture", None)
+                texture = result.texture
                 texture = bake_texture(colors) if texture is None else texture
             if out.suffix.lower() == ".glb":
                 textured_glb(out, result.vertices, texture)

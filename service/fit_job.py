@@ -335,7 +335,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             if colors is None:
                 write_glb(files["glb"], V, F)
             else:  # the colours baked on the template UV layout: a textured GLB and its PNG
-                texture = getattr(result, "texture", None)  # from a textured scan
+                texture = result.texture  # from a textured scan
                 png = encode_png(bake_texture(colors) if texture is None else texture)
                 textured_glb(files["glb"], V, png)
                 files["png"].write_bytes(png)

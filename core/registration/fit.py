@@ -121,6 +121,8 @@ class FitResult:
     report : :class:`FitReport`.
     colors : (13380, 3) float64 RGB in [0, 1] from a coloured scan
         (:func:`core.transfer.colour.colour_fit`), else None.
+    texture : (1024, 1024, 3) uint8 texture on the template UV layout from a textured scan
+        (:func:`core.transfer.colour.colour_fit`), else None.
     """
 
     vertices: np.ndarray
@@ -129,6 +131,7 @@ class FitResult:
     data_weight: np.ndarray
     report: FitReport
     colors: np.ndarray | None = None
+    texture: np.ndarray | None = None
 
 
 class FitCancelled(Exception):  # noqa: N818 (a cancellation, not an error)

@@ -11,13 +11,12 @@ to the vertex; on a point cloud it is the matched point's. Vertices with no comp
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
 from core.registration.correspondence import ScanIndex
+from core.registration.fit import FitResult
 from core.scan import Scan
 from core.template import load_template
 
@@ -113,8 +112,8 @@ def harmonic_fill(values: np.ndarray, known: np.ndarray, edges: np.ndarray) -> n
     return out
 
 
-def colour_fit(result: Any, scan: Scan) -> None:
-    """Give a fit result (``FitResult``) the colours of its scan, if the scan has any:
+def colour_fit(result: FitResult, scan: Scan) -> None:
+    """Give a fit result the colours of its scan, if the scan has any:
     sets ``result.colors`` and adds a report note (share of vertices filled). For a textured
     scan (``scan.textured``) also ``result.texture``: the (1024, 1024, 3) uint8 texture on the
     template UV layout taken from the scan's texture at full resolution
@@ -127,7 +126,7 @@ def colour_fit(result: Any, scan: Scan) -> None:
         f"colours from the scan; {100 * (1 - observed.mean()):.1f} % of vertices had no scan "
         "colour within 1 cm and were filled smoothly"
     )
-    if getattr(scan, "textured", None) is not None:
+    if scan.textured is not None:
         from core.transfer.texture import bake_texture, transfer_texture
 
         result.texture, share = transfer_texture(
