@@ -148,6 +148,8 @@ def _fit_out(f: Fit) -> FitOut:
             else []
         ),
         quality=(f.report or {}).get("quality") if f.state == "succeeded" else None,
+        warnings=list((f.report or {}).get("warnings") or []) if f.state == "succeeded" else [],
+        removed=dict((f.report or {}).get("removed") or {}) if f.state == "succeeded" else {},
     )
 
 

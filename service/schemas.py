@@ -328,6 +328,16 @@ class FitOut(BaseModel):
     quality: FitQualityOut | None = Field(
         None, description="a succeeded fit's quality verdict (none for fits without a scan)"
     )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="a succeeded fit's warnings (the result JSON's report.warnings): what may "
+        "make the body wrong, e.g. points removed as not the body, parts without data",
+    )
+    removed: dict[str, int] = Field(
+        default_factory=dict,
+        description="scan points removed as not the body before fitting (floor_points, "
+        "stray_points); scan->fit figures and the quality check are over the kept points",
+    )
 
 
 class ScanPage(BaseModel):

@@ -78,6 +78,10 @@ def test_end_to_end_fit_glb_validates_and_is_close_to_truth(client, sim, tmp_pat
         "head", "torso", "arm_L", "arm_R", "hand_L", "hand_R", "leg_L", "leg_R", "foot_L", "foot_R"
     }  # fmt: skip
     assert q["parts"]["head"]["scan_points"] > 0
+    # the warnings and the points removed as not the body: in the status as in the result JSON
+    assert done["warnings"] == rep["warnings"]
+    assert done["removed"] == rep["removed"]
+    assert not any(rep["removed"].values())  # a simulated scan has no floor or blobs
 
 
 def test_fit_that_raises_fails_with_message_and_pool_keeps_serving(client, sim):
