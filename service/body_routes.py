@@ -602,10 +602,14 @@ def create_posed_body(
 ) -> Response:
     """Pose a body (``{"posture": "seated"}`` and/or ``{"rotations": {bone: [x, y, z]}}``) by
     linear blend skinning with the standard rig on the body's own joints and the skin of its
-    rigged GLB (what a viewer shows), floor at y = 0. The result is a new stored body (``201``,
-    ``Location``, ``source`` ``pose``, ``derived_from``; its features are those of the rest
-    body), answered as GLB or, with ``Accept: application/json``, metadata + vertices + faces."""
+    rigged GLB (what a viewer shows), floor at y = 0. ``seated`` and ``driving`` rest on a flat
+    seat (``seat_contact``, default on for them: the tissue under the buttocks compressed, its
+    underside flattened on the seat; ``false`` for plain skinning). The result is a new stored
+    body (``201``, ``Location``, ``source`` ``pose``, ``derived_from``; its features are those of
+    the rest body), answered as GLB or, with ``Accept: application/json``, metadata + vertices +
+    faces."""
     from core.transfer.rig import pose, posture, rotations_from_vectors
+    from core.transfer.seat import SEATED_POSTURES
 
     src = _own(session, Body, body_id, tenant, "body")
     if src.source == "pose":
@@ -621,8 +625,13 @@ def create_posed_body(
         rot.update(rotations_from_vectors(req.rotations))
     except ValueError as e:
         raise ApiError("validation_error", str(e), field="rotations") from None
-    V = pose(_load_vertices(store, src.blob_key), rot)
-    params: dict[str, Any] = {"posture": req.posture, "rotations": req.rotations}
+    contact = req.seat_contact
+    if contact is None:
+        contact = req.posture in SEATED_POSTURES
+    V = pose(_load_vertices(store, src.blob_key), rot, seat_contact=contact)
+    params: dict[str, Any] = {
+        "posture": req.posture, "rotations": req.rotations, "seat_contact": contact,
+    }  # fmt: skip
     row = _store_body(
         session, store, tenant=tenant, V=V, model=src.model, sex=src.sex, source="pose",
         params=params, fit_id=src.fit_id, derived_from=src.id, features=src.features or {},

@@ -655,6 +655,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     from core.shapespace.build import read_body
     from core.template import load_template
     from core.transfer.rig import pose, posture, rotations_from_vectors
+    from core.transfer.seat import SEATED_POSTURES
 
     body = _check_in_path(Path(args.body), "body")
     out = Path(args.out)
@@ -677,9 +678,13 @@ def _cmd_pose(args: argparse.Namespace) -> int:
             rot.update(rotations_from_vectors(data))
         except ValueError as e:
             raise CliError(str(e)) from None
-    write_mesh(out, pose(read_body(body), rot), load_template().F)
+    contact = args.seat_contact
+    if contact is None:
+        contact = args.posture in SEATED_POSTURES
+    write_mesh(out, pose(read_body(body), rot, seat_contact=contact), load_template().F)
     if not args.quiet:
-        print(f"wrote {out}: {body.name} posed ({args.posture or 'rotations'})")
+        seat = ", on a seat" if contact else ""
+        print(f"wrote {out}: {body.name} posed ({args.posture or 'rotations'}{seat})")
     return 0
 
 
@@ -752,6 +757,11 @@ def register_rig(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--rotations", metavar="R.json",
         help="{bone: [x, y, z]} rotation vectors (radians, template axes), after the posture",
+    )  # fmt: skip
+    p.add_argument(
+        "--seat-contact", action=argparse.BooleanOptionalAction, default=None,
+        help="rest on a flat seat, the tissue under the buttocks compressed (default: on for "
+        "seated and driving, off otherwise)",
     )  # fmt: skip
     p.add_argument("--out", required=True, metavar="OUT", help=".ply, .obj or .glb")
     p.add_argument("--quiet", action="store_true", help="no summary")

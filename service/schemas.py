@@ -533,6 +533,7 @@ class BodyPose(BaseModel):
         json_schema_extra={
             "examples": [
                 {"posture": "seated"},
+                {"posture": "seated", "seat_contact": False},
                 {"rotations": {"upperleg01.L": [-1.2, 0, 0], "lowerleg01.L": [1.0, 0, 0]}},
             ],
             "anyOf": [  # a posture and/or at least one rotation
@@ -548,6 +549,13 @@ class BodyPose(BaseModel):
         description="bone name (the rig's 163: `propertyNames`) -> rotation vector [x, y, z] "
         "(radians)",
         json_schema_extra=_keys_from(_bones, minItems=3, maxItems=3),
+    )
+    seat_contact: bool | None = Field(
+        None,
+        description="rest the body on a flat seat: the soft tissue under the buttocks "
+        "compressed as measured in seated people (MRI; 33 mm under the ischial tuberosities), "
+        "its underside flattened on the seat plane; default: on for `seated` and `driving`, "
+        "off otherwise (then plain linear blend skinning)",
     )
 
 

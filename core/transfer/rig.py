@@ -10,7 +10,9 @@ carried to any body in template order, as a skinned GLB, and named postures.
   ``JOINTS_0``/``WEIGHTS_0`` from the template's skin weights (4 largest, renormalised, float32).
 - :data:`POSTURES` / :func:`posture` -- ``standing``, ``seated``, ``driving``, ``reach`` as
   local bone rotations; :func:`pose` -- a posed body by linear blend skinning
-  (:func:`core.rig.pose_body`), floor reset to y = 0.
+  (:func:`core.rig.pose_body`), optionally resting on a seat (``seat_contact``: the tissue
+  under the buttocks compressed on a flat seat, :mod:`core.transfer.seat`), floor reset to
+  y = 0.
 """
 
 from __future__ import annotations
@@ -21,8 +23,9 @@ import numpy as np
 
 from core.geometry import umeyama
 from core.io.writers import GlbSkin, write_glb
-from core.rig import Rig, axis_angle, joint_positions, load_rig, pose_body
+from core.rig import Rig, axis_angle, bone_transforms, joint_positions, load_rig, pose_body
 from core.template import load_template
+from core.transfer.seat import seat_contact as rest_on_seat
 
 JOINT_METHODS = ("regressor", "markers")
 
@@ -179,6 +182,7 @@ def pose(
     rig: Rig | None = None,
     method: str = "regressor",
     floor: bool = True,
+    seat_contact: bool = False,
 ) -> np.ndarray:
     """Pose body ``V`` by linear blend skinning with the template rig on the body's own joints
     and the skin of its GLB (4 influences per vertex: what a glTF viewer shows).
@@ -190,6 +194,10 @@ def pose(
         :func:`posture`.
     method : how the joints are placed (:func:`body_joints`).
     floor : shift vertically so that the lowest vertex is at y = 0.
+    seat_contact : rest the body on a flat seat (:func:`core.transfer.seat.seat_contact`: the
+        soft tissue under the buttocks compressed as measured in seated people); what the API
+        and CLI do by default for the postures with a seat
+        (:data:`core.transfer.seat.SEATED_POSTURES`). Off: exactly linear blend skinning.
 
     Returns
     -------
@@ -198,6 +206,9 @@ def pose(
     rig = rig or load_rig()
     J = body_joints(V, method=method, rig=rig)
     P = pose_body(V, rotations, rig=rig, joints=J, influences=4)
+    if seat_contact:
+        R, t = bone_transforms(rotations, J, rig=rig)
+        P, _ = rest_on_seat(P, np.einsum("jab,jb->ja", R, J) + t, rig=rig)
     if floor:
         P[:, 1] -= P[:, 1].min()
     return P

@@ -85,7 +85,10 @@ def test_rig_and_pose(tmp_path):
 
     want["lowerleg01.L"] = axis_angle([1, 0, 0], 0.5)
     Va32 = read_mesh(a).V
-    np.testing.assert_allclose(read_mesh(p).V, pose(Va32, want), atol=1e-9)
+    np.testing.assert_allclose(read_mesh(p).V, pose(Va32, want, seat_contact=True), atol=1e-9)
+    r = run_cli("pose", a, "--posture", "seated", "--no-seat-contact", "--out", p)
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(read_mesh(p).V, pose(Va32, posture("seated")), atol=1e-9)
 
     assert_one_line_error(run_cli("pose", a, "--out", p), "--posture")
     rot.write_text(json.dumps({"nosuchbone": [0, 0, 1]}))

@@ -55,7 +55,15 @@ def test_pose_stores_a_new_body(client, tmp_path, gltf_validator):
     new_id = r.headers["location"].rsplit("/", 1)[-1]
     rot = posture("seated")
     rot["lowerleg01.R"] = axis_angle([1, 0, 0], 0.3)
-    np.testing.assert_allclose(_mesh(client, new_id), pose(V, rot), atol=1e-9)
+    # seated rests on the seat by default (core.transfer.seat), plain LBS when asked
+    np.testing.assert_allclose(_mesh(client, new_id), pose(V, rot, seat_contact=True), atol=1e-9)
+    r = client.post(
+        f"/v1/bodies/{b['id']}/pose",
+        json={"posture": "seated", "seat_contact": False},
+        headers=JSON,
+    )
+    assert r.status_code == 201 and r.json()["params"]["seat_contact"] is False, r.text
+    np.testing.assert_allclose(r.json()["vertices"], pose(V, posture("seated")), atol=1e-9)
     meta = client.get(f"/v1/bodies/{new_id}", headers=JSON).json()
     assert meta["source"] == "pose" and meta["derived_from"] == b["id"]
     assert meta["features"] == b["features"]  # the rest body's
