@@ -219,11 +219,15 @@ def _fit_vertices(store: BlobStore, tenant: str, fit: Fit) -> np.ndarray:
 
 def _body_colors(store: BlobStore, b: Body) -> np.ndarray | None:
     """(13380, 3) uint8 colours of a body from a fit of a coloured scan (its edits and poses
-    too: same vertices), read from the fit's PLY result; None for every other body."""
+    too: same vertices; a stored blend of two coloured bodies: they share that fit, so the
+    blend of their colours is the fit's), read from the fit's PLY result; None for every other
+    body (a blend with an uncoloured body included)."""
     from core.io import read_mesh
     from service.fit_job import result_key
 
-    if b.fit_id is None or b.source not in ("fit", "edit", "pose"):
+    if b.fit_id is None or b.source not in ("fit", "edit", "pose", "morph"):
+        return None
+    if b.source == "morph" and (b.params or {}).get("colors") != "blended":
         return None
     try:
         with store.local_copy(result_key(b.tenant_id, b.fit_id, "ply")) as p:
@@ -339,7 +343,8 @@ def create_body(
 
 
 def _create_morph(body: MorphBody, tenant: str, session: Session, store: BlobStore) -> Body:
-    """Store ``(1 - t) from + t to``; model and sex of the nearer body (``sex`` may override)."""
+    """Store ``(1 - t) from + t to``; model and sex of the nearer body (``sex`` may override);
+    coloured (the blend of the two bodies' colours) when both are."""
     from core.transfer import morph
 
     spec = body.morph
@@ -357,7 +362,9 @@ def _create_morph(body: MorphBody, tenant: str, session: Session, store: BlobSto
     sex = body.sex or near.sex
     get_model(near.model).space(sex)  # the model has this sex (else out_of_range)
     V = morph(_load_vertices(store, a.blob_key), _load_vertices(store, b.blob_key), spec.t)
-    params = {"morph": {"from": a.id, "to": b.id, "t": spec.t}}
+    params: dict[str, Any] = {"morph": {"from": a.id, "to": b.id, "t": spec.t}}
+    if _body_colors(store, a) is not None and _body_colors(store, b) is not None:
+        params["colors"] = "blended"  # one fit's colours (else 422 above): their blend is them
     return _store_body(
         session, store, tenant=tenant, V=V, model=near.model, sex=sex, source="morph",
         params=params, fit_id=next(iter(fits), None), derived_from=a.id,
@@ -382,14 +389,16 @@ def create_morph(
     req: MorphRequest, tenant: TenantId, session: SessionDep, store: StoreDep
 ) -> Response:
     """2-16 of your bodies as one GLB with morph targets: any glTF viewer slides between
-    them (target weight 1 = that body)."""
+    them (target weight 1 = that body); ``COLOR_0``: the first body's colours, if it has
+    them."""
     from core.transfer import morph_glb
 
     if len(set(req.bodies)) != len(req.bodies):
         raise ApiError("validation_error", "bodies: each body at most once", field="bodies")
     rows = [_own(session, Body, i, tenant, "body") for i in req.bodies]
     Vs = [_load_vertices(store, r.blob_key) for r in rows]
-    data = morph_glb(Vs, names=[r.id for r in rows], F=_template_faces())
+    colors = _body_colors(store, rows[0])
+    data = morph_glb(Vs, names=[r.id for r in rows], F=_template_faces(), colors=colors)
     return Response(data, media_type=GLB)
 
 

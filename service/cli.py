@@ -579,10 +579,21 @@ def register_from_measurements(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- `morph`
 
 
+def _body_file_colours(path: Path) -> np.ndarray | None:
+    """(13380, 3) uint8 per-vertex colours of a body file (PLY/OBJ with colours), else None."""
+    if path.suffix.lower() not in (".ply", ".obj"):
+        return None
+    from core.io import read_mesh
+    from core.template import load_template
+
+    C = read_mesh(path).colors
+    return C if C is not None and len(C) == load_template().n_vertices else None
+
+
 def _cmd_morph(args: argparse.Namespace) -> int:
     from core.io import write_mesh
     from core.shapespace.build import read_body
-    from core.transfer import MAX_BODIES, morph, morph_glb
+    from core.transfer import MAX_BODIES, morph, morph_colors, morph_glb
 
     paths = [_check_in_path(Path(b), "body") for b in args.bodies]
     if not 2 <= len(paths) <= MAX_BODIES:
@@ -591,6 +602,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise CliError(f"the folder of --out does not exist: {out.parent}")
     bodies = [read_body(p) for p in paths]
+    colours = [_body_file_colours(p) for p in paths]
     if args.t is not None:
         if len(bodies) != 2:
             raise CliError(f"--t blends exactly two bodies, got {len(bodies)}")
@@ -600,14 +612,19 @@ def _cmd_morph(args: argparse.Namespace) -> int:
             raise CliError(f"--out must end in .ply, .obj or .glb, got {out.name!r}")
         from core.template import load_template
 
-        write_mesh(out, morph(bodies[0], bodies[1], args.t), load_template().F)
+        C = None
+        if colours[0] is not None and colours[1] is not None:
+            C = morph_colors(colours[0], colours[1], args.t)
+        V = morph(bodies[0], bodies[1], args.t)
+        write_mesh(out, V, load_template().F, colors=C)
         msg = f"wrote {out}: (1 - {args.t}) {paths[0].name} + {args.t} {paths[1].name}"
+        msg += ", colours blended" if C is not None else ""
     else:
         if out.suffix.lower() != ".glb":
             raise CliError(f"--out must be a .glb file (morph targets), got {out.name!r}")
         from core.io.writers import atomic_write
 
-        atomic_write(out, morph_glb(bodies, names=[p.stem for p in paths]))
+        atomic_write(out, morph_glb(bodies, names=[p.stem for p in paths], colors=colours[0]))
         names = ", ".join(p.stem for p in paths[1:])
         msg = f"wrote {out}: {paths[0].stem} with morph targets {names}"
     if not args.quiet:

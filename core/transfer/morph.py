@@ -51,6 +51,28 @@ def morph(V0: np.ndarray, V1: np.ndarray, t: float) -> np.ndarray:
     return (1.0 - t) * V0 + t * V1
 
 
+def morph_colors(C0: np.ndarray, C1: np.ndarray, t: float) -> np.ndarray:
+    """The in-between body's per-vertex colours ``(1 - t) C0 + t C1``, rounded.
+
+    Parameters
+    ----------
+    C0, C1 : (n, 3) uint8 RGB colours of the two bodies (template order).
+    t : blend parameter in [0, 1]; 0 gives ``C0`` and 1 gives ``C1`` exactly.
+
+    Returns
+    -------
+    (n, 3) uint8.
+    """
+    t = float(t)
+    if not 0.0 <= t <= 1.0:
+        raise ValueError(f"t must lie in [0, 1], got {t}")
+    C0, C1 = np.asarray(C0), np.asarray(C1)
+    if C0.shape != C1.shape or C0.ndim != 2 or C0.shape[1] != 3:
+        raise ValueError(f"colours must be two (n, 3) arrays, got {C0.shape} and {C1.shape}")
+    blend = (1.0 - t) * C0.astype(np.float64) + t * C1.astype(np.float64)
+    return np.clip(np.rint(blend), 0, 255).astype(np.uint8)
+
+
 def morph_targets(
     bodies: Sequence[np.ndarray],
     names: Sequence[str] | None = None,
@@ -89,10 +111,16 @@ def morph_targets(
 
 
 def morph_glb(
-    bodies: Sequence[np.ndarray], names: Sequence[str] | None = None, F: np.ndarray | None = None
+    bodies: Sequence[np.ndarray],
+    names: Sequence[str] | None = None,
+    F: np.ndarray | None = None,
+    *,
+    colors: np.ndarray | None = None,
 ) -> bytes:
-    """GLB of the first body with one morph target per other body (see :func:`morph_targets`)."""
+    """GLB of the first body with one morph target per other body (see :func:`morph_targets`),
+    with ``COLOR_0`` from ``colors`` ((n, 3) uint8 or floats in [0, 1]: the first body's) if
+    given."""
     if F is None:
         F = load_template().F
     V0, targets = morph_targets(bodies, names, F)
-    return write_glb(None, V0, F, targets=targets)
+    return write_glb(None, V0, F, colors=colors, targets=targets)

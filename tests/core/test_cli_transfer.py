@@ -41,6 +41,34 @@ def test_morph_glb_and_in_between(tmp_path):
     r = run_cli("morph", a, b, "--t", "0.25", "--out", mid)
     assert r.returncode == 0, r.stderr
     np.testing.assert_allclose(read_mesh(mid).V, 0.75 * Va + 0.25 * Vb, atol=1e-9)
+    assert read_mesh(mid).colors is None  # no colours in, none out
+
+
+def test_morph_keeps_colours(tmp_path):
+    """Coloured body files: the in-between body's colours are the blend, the morph GLB has
+    the first body's; with one uncoloured body the in-between body has none."""
+    from core.transfer import morph_colors
+
+    (a, Va), (b, Vb), (c, _) = _bodies(tmp_path, 3)
+    F = load_template().F
+    rng = np.random.default_rng(5)
+    Ca, Cb = (rng.integers(0, 256, (len(Va), 3), dtype=np.uint8) for _ in range(2))
+    write_ply(a, Va, F, colors=Ca)
+    write_ply(b, Vb, F, colors=Cb)
+    mid = tmp_path / "mid.ply"
+    r = run_cli("morph", a, b, "--t", "0.25", "--out", mid)
+    assert r.returncode == 0 and "colours blended" in r.stdout, r.stderr
+    np.testing.assert_array_equal(read_mesh(mid).colors, morph_colors(Ca, Cb, 0.25))
+    r = run_cli("morph", a, c, "--t", "0.25", "--out", mid)
+    assert r.returncode == 0, r.stderr
+    assert read_mesh(mid).colors is None
+    out = tmp_path / "m.glb"
+    r = run_cli("morph", a, b, c, "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert validate_glb(out)["errors"] == 0
+    doc, accessor = glb_parts(out.read_bytes())
+    attrs = doc["meshes"][0]["primitives"][0]["attributes"]
+    np.testing.assert_array_equal(accessor(attrs["COLOR_0"])[:, :3], Ca)
 
 
 def test_morph_errors(tmp_path):

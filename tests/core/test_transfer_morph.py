@@ -105,3 +105,35 @@ def test_targets_names_default():
     _, targets = morph_targets([a, a * 1.01])
     assert [t.name for t in targets] == ["body1"]
     np.testing.assert_allclose(targets[0].delta_positions, a * 0.01, atol=1e-12)
+
+
+def test_colours_blend_and_ride_on_the_glb(pair, tmp_path):
+    """An in-between body's colours are the blend of the two bodies' (t = 0 and 1 exact); the
+    morph GLB carries the first body's colours as COLOR_0 and still validates."""
+    from core.transfer import morph_colors
+
+    n = len(pair[0])
+    rng = np.random.default_rng(7)
+    C0 = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    C1 = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    assert np.array_equal(morph_colors(C0, C1, 0.0), C0)
+    assert np.array_equal(morph_colors(C0, C1, 1.0), C1)
+    mid = morph_colors(C0, C1, 0.3).astype(np.int64)
+    want = 0.7 * C0.astype(np.float64) + 0.3 * C1
+    assert np.abs(mid - want).max() <= 0.5 + 1e-9
+    lo, hi = np.minimum(C0, C1), np.maximum(C0, C1)
+    assert np.all((mid >= lo) & (mid <= hi))
+    with pytest.raises(ValueError, match="t must"):
+        morph_colors(C0, C1, 1.5)
+    with pytest.raises(ValueError, match="colours"):
+        morph_colors(C0, C1[:10], 0.5)
+
+    data = morph_glb(list(pair), names=["a", "b"], colors=C0)
+    path = tmp_path / "coloured.glb"
+    path.write_bytes(data)
+    report = validate_glb(path)
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    doc, accessor = glb_parts(data)
+    prim = doc["meshes"][0]["primitives"][0]
+    np.testing.assert_array_equal(accessor(prim["attributes"]["COLOR_0"])[:, :3], C0)
+    assert len(prim["targets"]) == 1

@@ -82,9 +82,30 @@ def test_coloured_scan_fit_and_body(client, tmp_path, gltf_validator):
     r = client.post(f"/v1/bodies/{bid}/pose", json={"posture": "seated"})
     assert r.status_code == 201, r.text
     np.testing.assert_array_equal(_colour(r.content), rgb)
-    # an uncoloured body has no colours
+    # an in-between body of two coloured bodies (the fit's body and an edit of it: one fit,
+    # so one set of colours) carries their blend; the morph GLB the first body's colours
+    r = client.post(f"/v1/bodies/{bid}/edit", json={"delta": {"weight_kg": 6}}, headers=JSON)
+    assert r.status_code == 201, r.text
+    edit = r.json()["id"]
+    r = client.post("/v1/bodies", json={"morph": {"from": bid, "to": edit, "t": 0.4}})
+    assert r.status_code == 201 and r.json()["params"]["colors"] == "blended", r.text
+    mid = r.json()["id"]
+    np.testing.assert_array_equal(_colour(client.get(f"/v1/bodies/{mid}").content), rgb)
+    assert client.get(f"/v1/bodies/{mid}", headers=JSON).json()["colors"] == rgb.tolist()
+    r = client.post("/v1/morphs", json={"bodies": [mid, bid, edit]})
+    assert r.status_code == 200, r.text
+    (tmp_path / "morph.glb").write_bytes(r.content)
+    report = validate_glb(tmp_path / "morph.glb")
+    assert report["errors"] == 0 and report["warnings"] == 0, report
+    np.testing.assert_array_equal(_colour(r.content), rgb)
+    # an uncoloured body has no colours, nor a blend with it, nor a morph GLB based on it
     other = client.post("/v1/bodies", json={"sex": "male", "seed": 1}).json()["id"]
     assert "colors" not in client.get(f"/v1/bodies/{other}", headers=JSON).json()
+    r = client.post("/v1/bodies", json={"morph": {"from": bid, "to": other, "t": 0.5}})
+    assert r.status_code == 201 and "colors" not in r.json()["params"], r.text
+    assert "colors" not in client.get(f"/v1/bodies/{r.json()['id']}", headers=JSON).json()
+    r = client.post("/v1/morphs", json={"bodies": [other, bid]})
+    assert "COLOR_0" not in glb_parts(r.content)[0]["meshes"][0]["primitives"][0]["attributes"]
     # ... but wears the fit's texture on request: the same UV layout, the same image
     r = client.get(f"/v1/bodies/{other}", params={"texture_from": fit_id})
     assert r.status_code == 200 and r.headers["content-type"] == "model/gltf-binary", r.text
