@@ -637,7 +637,10 @@ def create_posed_body(
     contact = req.seat_contact
     if contact is None:
         contact = req.posture in SEATED_POSTURES
-    V = pose(_load_vertices(store, src.blob_key), rot, seat_contact=contact)
+    try:
+        V = pose(_load_vertices(store, src.blob_key), rot, seat_contact=contact)
+    except ValueError as e:  # seat contact in a posture without a seat
+        raise ApiError("validation_error", str(e), field="seat_contact") from None
     params: dict[str, Any] = {
         "posture": req.posture, "rotations": req.rotations, "seat_contact": contact,
     }  # fmt: skip

@@ -698,7 +698,11 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     contact = args.seat_contact
     if contact is None:
         contact = args.posture in SEATED_POSTURES
-    write_mesh(out, pose(read_body(body), rot, seat_contact=contact), load_template().F)
+    try:
+        P = pose(read_body(body), rot, seat_contact=contact)
+    except ValueError as e:  # seat contact in a posture without a seat
+        raise CliError(str(e)) from None
+    write_mesh(out, P, load_template().F)
     if not args.quiet:
         seat = ", on a seat" if contact else ""
         print(f"wrote {out}: {body.name} posed ({args.posture or 'rotations'}{seat})")

@@ -49,6 +49,8 @@ IT_COMPRESSION = 0.45
 CONTACT_EDGE = 0.010
 #: The seat ends this far (m) behind the knee joints, fading to nothing at them.
 SEAT_FRONT = 0.10
+#: sin 45 deg: seat contact needs both thighs forward and within 45 deg of horizontal.
+SEAT_THIGH = float(np.sin(np.radians(45.0)))
 #: Postures that have a seat (seat contact on by default for them).
 SEATED_POSTURES = ("seated", "driving")
 
@@ -131,6 +133,12 @@ def seat_contact(
     -------
     (13380, 3) float64 vertices (only ``y`` changes, only on the seat region below the IT
     level), and a :class:`SeatContact`.
+
+    Raises
+    ------
+    ValueError
+        when the posture has no seat: a thigh (hip -> knee joint) not forward or more than
+        45 deg from horizontal.
     """
     rig = rig or load_rig()
     P = np.asarray(P, dtype=np.float64)
@@ -140,8 +148,17 @@ def seat_contact(
         raise ValueError(f"tissue {tissue} m / compression {compression} out of range")
     rho = seat_weights(P, joints, rig=rig)
     seat = rho == 1.0
-    low = float(P[seat, 1].min())
-    hip = float(joints[[rig.index("upperleg01.L"), rig.index("upperleg01.R")], 1].mean())
+    hips = joints[[rig.index("upperleg01.L"), rig.index("upperleg01.R")]]
+    thighs = joints[[rig.index("lowerleg01.L"), rig.index("lowerleg01.R")]] - hips
+    hip = float(hips[:, 1].mean())
+    sitting = np.all(
+        (thighs[:, 2] > 0) & (np.abs(thighs[:, 1]) <= SEAT_THIGH * np.linalg.norm(thighs, axis=1))
+    )
+    if not sitting or not seat.any() or (low := float(P[seat, 1].min())) >= hip:
+        raise ValueError(
+            "no seat to rest on: seat contact needs both thighs forward and within 45 deg of "
+            "horizontal (a seated posture); use seat_contact false"
+        )
     t0 = min(tissue, hip - low)  # the bone is not above the hip joints
     loaded = (1.0 - compression) * t0
     plane = low + compression * t0

@@ -119,6 +119,9 @@ def test_rig_and_pose(tmp_path):
     np.testing.assert_allclose(read_mesh(p).V, pose(Va32, posture("seated")), atol=1e-9)
 
     assert_one_line_error(run_cli("pose", a, "--out", p), "--posture")
+    assert_one_line_error(
+        run_cli("pose", a, "--posture", "standing", "--seat-contact", "--out", p), "no seat"
+    )
     rot.write_text(json.dumps({"nosuchbone": [0, 0, 1]}))
     assert_one_line_error(run_cli("pose", a, "--rotations", rot, "--out", p), "nosuchbone")
     assert_one_line_error(run_cli("rig", a, "--out", tmp_path / "r.ply"), ".glb")

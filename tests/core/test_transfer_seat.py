@@ -102,6 +102,17 @@ def test_standing_unchanged(body):
     np.testing.assert_array_equal(pose(body, rot, floor=False), lbs)
 
 
+def test_no_seat_no_contact(body):
+    """A posture without a seat (the thighs hanging straight down or raised above the hips)
+    is a clear error, not a made-up seat."""
+    with pytest.raises(ValueError, match="no seat"):
+        pose(body, posture("standing"), seat_contact=True)
+    up = {"upperleg01.L": posture("seated")["upperleg01.L"] @ posture("seated")["upperleg01.L"]}
+    up["upperleg01.R"] = posture("seated")["upperleg01.R"] @ posture("seated")["upperleg01.R"]
+    with pytest.raises(ValueError, match="no seat"):
+        pose(body, up, seat_contact=True)
+
+
 def test_seated_glb_validates(body, tmp_path):
     P = pose(body, posture("seated"), seat_contact=True)
     F = load_template().F
