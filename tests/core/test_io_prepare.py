@@ -169,7 +169,7 @@ def test_prepare_300k_mesh_under_a_second():
     F = np.vstack([F, F[F.max(axis=1) < 300_000 - 214_050] + 214_050])
     raw = RawMesh(V=V * 1000.0, F=F)
     frame = detect_frame(raw.V, units="mm", up="+y")
-    best = min(_timed(raw, frame) for _ in range(2))
+    best = min(_timed(raw, frame) for _ in range(3))  # best of 3: CPU time still varies under load
     assert best < 1.0
 
 
