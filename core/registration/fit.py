@@ -657,13 +657,16 @@ RETRIES = (
 _RANK = {"good": 0, "suspect": 1, "failed": 2}
 
 
-def _score(res: FitResult) -> tuple[int, int, float]:
-    """Lower is better: verdict, number of parts not good, scan→fit p95."""
+def _score(res: FitResult) -> tuple[int, int, float, float]:
+    """Lower is better: verdict, number of parts not good, the scan→fit p95 summed over those
+    parts (unexplained data where the fit is weak; a part without scan points counts 0), the
+    whole scan's scan→fit p95."""
     q = res.report.quality
     if q is None:
-        return (0, 0, res.report.scan_to_fit_p95_m)
-    bad = sum(p.quality != "good" for p in q.parts.values())
-    return (_RANK[q.quality], bad, res.report.scan_to_fit_p95_m)
+        return (0, 0, 0.0, res.report.scan_to_fit_p95_m)
+    weak = [p for p in q.parts.values() if p.quality != "good"]
+    unexplained = sum(float(np.nan_to_num(p.scan_to_fit_p95_m)) for p in weak)
+    return (_RANK[q.quality], len(weak), unexplained, res.report.scan_to_fit_p95_m)
 
 
 def _run(scan: Scan, markers: dict[str, np.ndarray], callback, options: dict) -> FitResult:
@@ -707,9 +710,9 @@ def fit(
     whose arm or hand is not good started 10°, then 30° from the body's side — another
     initialisation, kept for the later retries when it was better; every marker trusted at full
     weight; the parts that are not good weighted ×4 with scan→body pairs), and the best result
-    is kept (verdict, then parts not good, then
-    scan→fit p95): at most 1 + ``len(RETRIES)`` fits. The report's notes list the
-    attempts; a part still lost stays in the verdict with its name.
+    is kept (verdict, then parts not good, then their scan→fit p95, then the scan's: see
+    ``_score``): at most 1 + ``len(RETRIES)`` fits. The report's notes list the attempts; a part
+    still lost stays in the verdict with its name.
     """
     options: dict[str, Any] = {
         "schedule": schedule, "template": template, "max_distance": max_distance,
