@@ -550,7 +550,7 @@ class BodyPose(BaseModel):
         "(radians)",
         json_schema_extra=_keys_from(_bones, minItems=3, maxItems=3),
     )
-    seat_contact: bool | None = Field(
+    seat_contact: StrictBool | None = Field(
         None,
         description="rest the body on a flat seat: the soft tissue under the buttocks "
         "compressed as measured in seated people (MRI; 33 mm under the ischial tuberosities), "

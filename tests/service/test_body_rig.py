@@ -85,6 +85,7 @@ def test_pose_errors(client):
         ({"rotations": {"nosuchbone": [0, 0, 1]}}, "nosuchbone"),
         ({"rotations": {"head": [0, 1]}}, "3 finite numbers"),
         ({"posture": "standing", "seat_contact": True}, "no seat"),
+        ({"posture": "seated", "seat_contact": 0}, "seat_contact"),  # strict: 0 is no boolean
     ):
         r = client.post(f"/v1/bodies/{b}/pose", json=body)
         assert r.status_code == 422, (body, r.text)

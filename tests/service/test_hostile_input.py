@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import io
 import subprocess
 import sys
@@ -109,10 +110,18 @@ def test_marker_name_check_is_linear(dup):
 
     data = _many_markers(40_000, dup)
     assert len(data) > 800_000
-    t = time.process_time()
-    with pytest.raises(MarkerError, match="duplicate" if dup else "unknown") as e:
-        read_markers(data, "json", valid_names=["Vertex"])
-    assert time.process_time() - t < 0.5  # was 14 s (quadratic duplicate check)
+    # the API process freezes its start-up heap (service.app: gc.freeze()); do the same with the
+    # objects the earlier tests left, or a full collection over them is timed (0.6 s once in CI)
+    gc.collect()
+    gc.freeze()
+    try:
+        t = time.process_time()
+        with pytest.raises(MarkerError, match="duplicate" if dup else "unknown") as e:
+            read_markers(data, "json", valid_names=["Vertex"])
+        took = time.process_time() - t
+    finally:
+        gc.unfreeze()
+    assert took < 0.5  # was 14 s (quadratic duplicate check)
     assert len(str(e.value)) < 2_000  # names listed up to 10, not all 40,000
 
 
