@@ -229,16 +229,15 @@ def write_outputs(result: Any, outs: Sequence[Path], report_path: Path | None, i
     from core.io.writers import atomic_write
 
     t0 = time.perf_counter()
-    colors = getattr(result, "colors", None)
+    colors = result.colors
     texture = None
     for out in outs:
         if colors is not None and out.suffix.lower() in (".glb", ".obj"):
             # baked on the template UV layout: a textured GLB, or OBJ + MTL + PNG
-            from core.transfer.texture import bake_texture, textured_glb, write_textured_obj
+            from core.transfer.texture import fit_texture, textured_glb, write_textured_obj
 
-            if texture is None:  # from a textured scan, else the vertex colours baked
-                texture = result.texture
-                texture = bake_texture(colors) if texture is None else texture
+            if texture is None:
+                texture = fit_texture(colors, result.texture)
             if out.suffix.lower() == ".glb":
                 textured_glb(out, result.vertices, texture)
             else:

@@ -262,7 +262,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
     from core.io import write_glb, write_obj, write_ply
     from core.io.images import encode_png
     from core.registration.fit import FitCancelled
-    from core.transfer.texture import TEXTURE_SIZE, bake_texture, textured_glb
+    from core.transfer.texture import TEXTURE_SIZE, fit_texture, textured_glb
 
     settings = settings or get_settings()
     if not _claim(fit_id, task_id, settings):
@@ -327,7 +327,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             V, F = result.vertices, result.faces
             report = json_ready(result.report.to_dict())
             formats = dict(RESULT_FORMATS)
-            colors = getattr(result, "colors", None)  # only fits of coloured scans
+            colors = getattr(result, "colors", None)  # FitResult of a coloured scan only
             if colors is not None:
                 formats[TEXTURE_FORMAT[0]] = TEXTURE_FORMAT[1]
             keys = {f: result_key(row.tenant_id, fit_id, f) for f in formats}
@@ -335,8 +335,7 @@ def run_fit(fit_id: str, task_id: str, settings: Settings | None = None) -> str:
             if colors is None:
                 write_glb(files["glb"], V, F)
             else:  # the colours baked on the template UV layout: a textured GLB and its PNG
-                texture = result.texture  # from a textured scan
-                png = encode_png(bake_texture(colors) if texture is None else texture)
+                png = encode_png(fit_texture(colors, result.texture))
                 textured_glb(files["glb"], V, png)
                 files["png"].write_bytes(png)
                 report["texture"] = {"format": "png", "size_px": TEXTURE_SIZE, "uv": "template"}

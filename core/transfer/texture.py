@@ -140,6 +140,13 @@ def bake_texture(
     return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 
+def fit_texture(colours: np.ndarray, texture: np.ndarray | None) -> np.ndarray:
+    """A coloured fit's texture on the template UV layout: ``texture`` (taken from a textured
+    scan at full resolution, ``FitResult.texture``) when there is one, else the per-vertex
+    ``colours`` (13380, 3) baked (:func:`bake_texture`). Returns (size, size, 3) uint8."""
+    return bake_texture(colours) if texture is None else texture
+
+
 def texture_colours(image: np.ndarray, *, layout: UVLayout | None = None) -> np.ndarray:
     """Per-vertex colours of a texture on the template UV layout: (13380, 3) float64 in [0, 1],
     the bilinear sample at each vertex's UV (averaged over a seam vertex's copies)."""
