@@ -58,6 +58,15 @@ def _lock_holder(data: Path) -> int:
     return int((data / "runner.lock").read_text().strip())
 
 
+def _parent_pid(pid: int) -> int | None:
+    """The parent of a live process, None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat.rsplit(")", 1)[1].split()[1])
+
+
 def _wait_lock_holder(data: Path, not_pid: int | None = None, timeout: float = 30) -> int:
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
@@ -178,9 +187,11 @@ def test_serve_workers_2_embedded(tmp_path):
                 timeout=60,
             )  # fmt: skip
             assert r.status_code == 200, r.text
-        # kill the process running the fits: it is restarted, the other takes the fits over
+        # kill the process running the fits: it is restarted, and another process of this
+        # server takes the fits over (the survivor or the replacement, whichever locks first)
         subprocess.run(["kill", "-9", str(leader)], check=True)
-        assert _wait_lock_holder(data, not_pid=leader) in api
+        holder = _wait_lock_holder(data, not_pid=leader)
+        assert holder in api or _parent_pid(holder) == proc.pid, (holder, api)
         with httpx.Client(base_url=url, headers=headers, timeout=60) as c:
             scan = upload_scan(c, sim).json()
             fit_id = c.post("/v1/fits", json={"scan_id": scan["id"], **FAST}).json()["id"]
