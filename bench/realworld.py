@@ -21,7 +21,8 @@ of the same seed: one body) are compared vertex by vertex in the body's frame (m
 vertices, and without the hands, which a closed mesh turns into mittens). Results go to
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
-Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--jobs 1] [--kinds K1,K2]``.
+Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--jobs 1] [--kinds K1,K2]
+[--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -67,15 +68,34 @@ def _commit() -> str:
         return "unknown"
 
 
-def area_samples(V: np.ndarray, F: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
-    """``n`` points (n, 3) uniformly distributed by area on the triangle mesh (V, F)."""
+def area_samples(
+    V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, *, faces: bool = False
+) -> Any:
+    """``n`` points (n, 3) uniformly distributed by area on the triangle mesh (V, F); with
+    ``faces`` also the (n,) index of the triangle each lies on."""
     rng = np.random.default_rng(seed)
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     fi = rng.choice(len(F), size=n, p=area / area.sum())
     r1, r2 = rng.random(n), rng.random(n)
     s = np.sqrt(r1)
-    return (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
+    S = (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
+    return (S, fi) if faces else S
+
+
+def fit_to_scan(scan: Any, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (m) from 30 000 points sampled by area on the template-ordered surface (V, F)
+    to the scan (its surface; a point cloud: its nearest point, which has a sampling floor),
+    and the quality part (index into ``part_labels()``) of each sample's triangle."""
+    from core.geometry import MeshDistance
+    from core.registration.quality import part_labels
+
+    S, fi = area_samples(V, F, 30_000, faces=True)
+    if scan.F is not None and len(scan.F):
+        back = MeshDistance(scan.V, scan.F).distances(S)
+    else:
+        back = cKDTree(scan.V).query(S)[0]
+    return back, part_labels()[0][F[fi, 0]]
 
 
 def surface_metrics(
@@ -95,24 +115,35 @@ def surface_metrics(
     if len(P) > 300_000:
         P = P[rng.choice(len(P), 300_000, replace=False)]
     d = MeshDistance(fit_V, fit_F).distances(P)
-    S = area_samples(fit_V, fit_F, 30_000)
-    if scan.F is not None and len(scan.F):
-        back = MeshDistance(scan.V, scan.F).distances(S)
-    else:
-        back = cKDTree(scan.V).query(S)[0]
+    back, back_part = fit_to_scan(scan, fit_V, fit_F)
     part = tpl.part[cKDTree(fit_V).query(P)[1]]
     per_part = {}
     for k, name in enumerate(tpl.part_names):
         m = part == k
         per_part[name] = float(np.percentile(d[m], 95) * MM) if m.sum() >= 20 else float("nan")
-    body = {}
+    from core.registration.quality import part_labels
+
+    qnames = part_labels()[1]
+    body: dict[str, Any] = {
+        "part_fit_to_scan_mean_mm": {
+            name: float(back[back_part == k].mean() * MM) for k, name in enumerate(qnames)
+        }
+    }
     if truth is not None:
         on = MeshDistance(truth, np.asarray(tpl.F, np.int64), k=8).distances(P) < 0.010
-        body = {
-            "body_points_fraction": float(on.mean()),
-            "body_scan_to_fit_median_mm": float(np.median(d[on]) * MM),
-            "body_scan_to_fit_p95_mm": float(np.percentile(d[on], 95) * MM),
-        }
+        # the floor of fit->scan: the true body's own surface, the same sampling and code path
+        t_back, t_part = fit_to_scan(scan, truth, np.asarray(tpl.F, np.int64))
+        body.update(
+            {
+                "body_points_fraction": float(on.mean()),
+                "body_scan_to_fit_median_mm": float(np.median(d[on]) * MM),
+                "body_scan_to_fit_p95_mm": float(np.percentile(d[on], 95) * MM),
+                "truth_fit_to_scan_mean_mm": float(t_back.mean() * MM),
+                "part_truth_fit_to_scan_mean_mm": {
+                    name: float(t_back[t_part == k].mean() * MM) for k, name in enumerate(qnames)
+                },
+            }
+        )
     return {
         **body,
         "scan_to_fit_median_mm": float(np.median(d) * MM),
@@ -206,6 +237,7 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
         row["quality_reasons"] = list(q.reasons)
         row["part_quality"] = {k: p.quality for k, p in q.parts.items()}
     row["warnings"] = list(rep.warnings)
+    row["notes"] = list(rep.notes)
     row["frame"] = info["frame"]
     truth = scan.frame.to_canonical(case.truth)
     row["removed"] = dict(rep.removed)
@@ -250,11 +282,18 @@ def _run(args: tuple) -> dict[str, Any]:
 
 
 def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """closed_lowres vs raw fits of the same body: mean vertex distance (mm), all / no hands."""
+    """closed_lowres vs raw fits of the same body (mm): mean vertex distance, all / no hands /
+    per quality part, split into its components across (``normal_mm``) and along
+    (``tangential_mm``) the surface, and the two fitted surfaces' distance whatever the
+    correspondence (``surface_mm``: area samples of each to the other's surface, both ways)."""
+    from core.geometry import MeshDistance, vertex_normals
+    from core.registration.quality import part_labels
     from core.template import load_template
 
     tpl = load_template()
+    F = np.asarray(tpl.F, np.int64)
     hands = tpl.part_mask("hand_L") | tpl.part_mask("hand_R")
+    labels, pnames = part_labels()
     by = {(r["seed"], r["kind"]): r for r in rows}
     out = []
     for (seed, kind), r in sorted(by.items()):
@@ -264,9 +303,24 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         if "_fit_body" not in r or "_fit_body" not in s:
             out.append({"seed": seed, "mean_mm": float("nan"), "no_hands_mm": float("nan")})
             continue
-        d = np.linalg.norm(r["_fit_body"] - s["_fit_body"], axis=1) * MM
+        A, B = r["_fit_body"], s["_fit_body"]
+        d = np.linalg.norm(A - B, axis=1) * MM
+        # the difference split along / across the surface (normals of the two fits' mean)
+        N = vertex_normals((A + B) / 2, F)
+        along_n = np.abs(np.einsum("ij,ij->i", A - B, N)) * MM
+        # the two fitted surfaces' distance whatever the correspondence (both ways, by area)
+        ab = MeshDistance(B, F).distances(area_samples(A, F, 30_000))
+        ba = MeshDistance(A, F).distances(area_samples(B, F, 30_000, seed=1))
         out.append(
-            {"seed": seed, "mean_mm": float(d.mean()), "no_hands_mm": float(d[~hands].mean())}
+            {
+                "seed": seed,
+                "mean_mm": float(d.mean()),
+                "no_hands_mm": float(d[~hands].mean()),
+                "part_mm": {n: float(d[labels == i].mean()) for i, n in enumerate(pnames)},
+                "normal_mm": float(along_n.mean()),
+                "tangential_mm": float(np.sqrt(np.maximum(d**2 - along_n**2, 0)).mean()),
+                "surface_mm": float((ab.mean() + ba.mean()) / 2 * MM),
+            }
         )
     return out
 
@@ -365,6 +419,7 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         f"({mark(mean('body_scan_to_fit_p95_mm'), TARGETS['p95'])})",
         f"fit->scan mean (fit sampled by area), averaged: {_f(f2s, '{:.2f}')} mm "
         f"(target <= 2.0: {mark(f2s, TARGETS['fit_to_scan'])})",
+        *floor_lines(ok),
         f"correspondence to truth, mean averaged: {_f(mean('corr_mean_mm'), '{:.2f}')} mm, "
         f"p95 averaged {_f(mean('corr_p95_mm'), '{:.2f}')} mm",
         "closed-vs-raw twins (same body), mean vertex distance: "
@@ -381,6 +436,7 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
             if tw_ok
             else ""
         ),
+        *twin_part_lines(tw),
         "per-case scan->fit p95 <= 6 mm (no lost part): "
         f"{sum(r['scan_to_fit_p95_mm'] <= 6.0 for r in ok)}/{len(ok)} fitted cases; "
         "'good' verdicts with p95 > 6 mm: "
@@ -416,6 +472,52 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
     return lines
 
 
+def floor_lines(ok: list[dict[str, Any]]) -> list[str]:
+    """Extra lines: the truth's own fit->scan (its floor) beside the fit's, by family and by
+    part (mm; fitted cases that have it)."""
+    rs = [r for r in ok if "truth_fit_to_scan_mean_mm" in r]
+    if not rs:
+        return []
+    fams = sorted({r["family"] for r in rs})
+
+    def avg(key: str, sel: list[dict[str, Any]]) -> float:
+        return float(np.mean([r[key] for r in sel]))
+
+    parts = list(rs[0]["part_truth_fit_to_scan_mean_mm"])
+
+    def pavg(key: str, p: str) -> float:
+        return float(np.nanmean([r[key][p] for r in rs]))
+
+    return [
+        f"  floor: the truth's own fit->scan (true surface sampled by area, same code), averaged: "
+        f"{avg('truth_fit_to_scan_mean_mm', rs):.2f} mm (fit {avg('fit_to_scan_mean_mm', rs):.2f}"
+        f"); by family truth/fit: "
+        + ", ".join(
+            f"{f} {avg('truth_fit_to_scan_mean_mm', s):.2f}/{avg('fit_to_scan_mean_mm', s):.2f}"
+            for f in fams
+            for s in [[r for r in rs if r["family"] == f]]
+        )
+        + " (clouds: point-to-nearest-point, a sampling floor even for the truth)",
+        "  fit->scan by part, truth/fit averaged (mm): "
+        + ", ".join(
+            f"{p} {pavg('part_truth_fit_to_scan_mean_mm', p):.1f}/"
+            f"{pavg('part_fit_to_scan_mean_mm', p):.1f}"
+            for p in parts
+        ),
+    ]
+
+
+def twin_part_lines(tw: list[dict[str, Any]]) -> list[str]:
+    """Extra lines: each twin pair's vertex distance by quality part (mm)."""
+    return [
+        f"  twins seed {t['seed']}: across the surface {t['normal_mm']:.1f}, along it "
+        f"{t['tangential_mm']:.1f}, surface to surface {t['surface_mm']:.1f} mm; by part: "
+        + ", ".join(f"{p} {v:.1f}" for p, v in t["part_mm"].items())
+        for t in tw
+        if t.get("part_mm")
+    ]
+
+
 def lost_parts(row: dict[str, Any]) -> list[str]:
     """Quality parts of a fitted case whose centroid is > ``LOST_PART_MM`` off the truth's."""
     off = row.get("part_truth_offset_mm") or {}
@@ -428,6 +530,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markers", action="store_true", help="fit with the other-convention markers")
     ap.add_argument("--jobs", type=int, default=1, help="processes (CPU is shared: default 1)")
     ap.add_argument("--kinds", default="", help="only these kinds (comma-separated)")
+    ap.add_argument("--seeds", default="", help="only these seeds (comma-separated)")
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
     ap.add_argument("--from-partial", metavar="JSONL", help="print the report of a partial run")
     args = ap.parse_args(argv)
@@ -448,6 +551,9 @@ def main(argv: list[str] | None = None) -> int:
         if not want <= set(KINDS):
             ap.error(f"--kinds: unknown {sorted(want - set(KINDS))}; valid: {sorted(KINDS)}")
         cases = [c for c in cases if c[1] in want]
+    if args.seeds:
+        seeds = {int(x) for x in args.seeds.split(",")}
+        cases = [c for c in cases if c[0] in seeds]
     todo = [(s, k, args.markers) for s, k in cases]
     t0 = time.perf_counter()
     commit = _commit()

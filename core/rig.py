@@ -191,7 +191,11 @@ def axis_angle(axis: np.ndarray | list[float], angle: float) -> np.ndarray:
 
 
 def bone_transforms(
-    rotations: Mapping[str, np.ndarray], joints: np.ndarray, *, rig: Rig | None = None
+    rotations: Mapping[str, np.ndarray],
+    joints: np.ndarray,
+    *,
+    rig: Rig | None = None,
+    validate: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """World transforms of every bone for a pose (forward kinematics).
 
@@ -200,6 +204,9 @@ def bone_transforms(
     rotations : bone name -> (3, 3) local rotation (see the module docstring); others identity.
     joints : (J, 3) rest joint (head) positions, metres.
     rig : the rig (default :func:`load_rig`).
+    validate : check that every rotation is a proper (3, 3) rotation (``ValueError`` otherwise);
+        False for callers whose rotations are proper by construction (the body prior's, ~2 ms
+        per call saved).
 
     Returns
     -------
@@ -214,6 +221,9 @@ def bone_transforms(
     local = np.broadcast_to(np.eye(3), (J, 3, 3)).copy()
     for name, Rm in rotations.items():
         Rm = np.asarray(Rm, dtype=np.float64)
+        if not validate:
+            local[rig.index(name)] = Rm
+            continue
         if Rm.shape != (3, 3):
             raise ValueError(f"rotation of {name!r} must be (3, 3), got {Rm.shape}")
         if not np.allclose(Rm @ Rm.T, np.eye(3), atol=1e-6) or np.linalg.det(Rm) <= 0:
@@ -231,6 +241,47 @@ def bone_transforms(
             R[j] = R[p] @ local[j]
             t[j] = R[p] @ h + t[p] - R[j] @ h
     return R, t
+
+
+def finger_rotations(
+    J: np.ndarray,
+    tails: np.ndarray,
+    side: str,
+    fist: bool,
+    amount: float,
+    *,
+    rig: Rig | None = None,
+) -> dict[str, np.ndarray]:
+    """Local rotations curling (``fist``: every finger joint by ``amount`` degrees, the thumb's by
+    30°, towards the palm) or spreading (by up to ``amount`` degrees) the fingers of one hand.
+
+    ``J``, ``tails`` (J, 3): the rest body's joints (:func:`joint_positions`, heads and tails);
+    ``side`` ``".L"`` or ``".R"``; the rest pose is the template's A-pose (palms down and in).
+    """
+    rig = rig or load_rig()
+    sgn = 1.0 if side == ".L" else -1.0
+    palm = np.array([-sgn, -1.0, 0.0]) / np.sqrt(2.0)  # rest A-pose palms face down and in
+    across = J[rig.index("finger5-1" + side)] - J[rig.index("finger2-1" + side)]
+    across /= np.linalg.norm(across)
+    rot: dict[str, np.ndarray] = {}
+    for f in range(1, 6):
+        for k in range(1, 4):
+            name = f"finger{f}-{k}{side}"
+            j = rig.index(name)
+            d = tails[j] - J[j]
+            if fist:
+                ax = np.cross(d, palm) if f == 1 else across
+                ang = np.radians(30.0 if f == 1 else amount)
+                R = axis_angle(ax, ang)
+                if (R @ d - d) @ palm < 0:  # curl towards the palm
+                    R = R.T
+            else:
+                if k > 1 or f == 1:
+                    continue
+                ang = np.radians(amount) * (f - 3.0) / 2.0  # spread about the palm normal
+                R = axis_angle(palm, sgn * ang)
+            rot[name] = R
+    return rot
 
 
 def pose_body(

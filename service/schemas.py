@@ -296,6 +296,12 @@ class PartQualityOut(BaseModel):
     hand_proportion: float | None = Field(
         None, description="hands: hand reach per forearm length over the template's, max(r, 1/r)"
     )
+    hand_tip_gap_m: float | None = Field(
+        None, description="hands: median distance of the fitted fingertips to the scan (m)"
+    )
+    head_turn_deg: float | None = Field(
+        None, description="head: rotation of the head against the torso from the template's (deg)"
+    )
 
 
 class FitQualityOut(BaseModel):
@@ -336,7 +342,8 @@ class FitOut(BaseModel):
     removed: dict[str, int] = Field(
         default_factory=dict,
         description="scan points removed as not the body before fitting (floor_points, "
-        "stray_points); scan->fit figures and the quality check are over the kept points",
+        "stray_points; hair_points: hair on the head a markerless fit left out); scan->fit "
+        "figures and the quality check are over the kept points",
     )
 
 

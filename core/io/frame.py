@@ -10,7 +10,8 @@ Auto-detection rules
 - **Up**: with head and foot markers, the signed file axis closest to the foot -> head
   direction. Otherwise the axis of largest extent, if it is at least 1.15x the other two; its
   sign is taken as **positive** (a file's up axis is assumed to point up, as every scanner
-  we know writes it). Pass ``up="-y"`` etc. for upside-down files.
+  we know writes it). Pass ``up="-y"`` etc. for upside-down files; a markerless fit that finds
+  the body head-down turns the scan over (:func:`turn_over`).
 - **Units**: the body's height (robust extent along the up axis): 1.0-2.3 -> m, 100-230 -> cm,
   1000-2300 -> mm; anything else is a :class:`UnitsError` naming the ``units=`` option.
 """
@@ -22,7 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from core.errors import UnitsError
-from core.scan import FrameInfo, RawMesh
+from core.scan import FrameInfo, RawMesh, Scan
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 UPS = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -211,3 +212,32 @@ def apply_frame(raw: RawMesh, frame: FrameInfo) -> RawMesh:
         confidence=raw.confidence,
         colors=raw.colors,
     )
+
+
+def turn_over(scan: Scan) -> np.ndarray:
+    """Turn a scan whose up axis was read with the wrong sign head up, in place.
+
+    Without markers the up axis's sign is assumed positive (see the module notes); a body found
+    standing head-down along it (by the markerless search) is turned over: points, normals and
+    the textured surface are rotated by ``M`` (3, 3), a proper rotation taking canonical -Y to +Y,
+    and the frame becomes that of the opposite up axis (``rotation_for_up``), so ``to_file``
+    still maps the canonical frame back to the file's (a scan without a frame: 180° about Z).
+    Returns ``M``.
+    """
+    old = scan.frame
+    up = "" if old is None else ("-" if old.up.startswith("+") else "+") + old.up[1]
+    R = None if old is None else rotation_for_up(up)
+    M = np.diag([-1.0, -1.0, 1.0]) if old is None or R is None else R @ old.R.T
+    scan.V = scan.V @ M.T
+    scan.normals = scan.normals @ M.T
+    if scan.textured is not None:
+        scan.textured.V = scan.textured.V @ M.T
+    if old is None or R is None:
+        scan.notes.append("the body stood head-down: turned over")
+        return M
+    scan.frame = FrameInfo(units=old.units, up=up, scale=old.scale, R=R, detected=old.detected)
+    scan.notes.append(
+        f"up axis {old.up} held the body head-down: turned over, up axis {up} (the sign of an "
+        "up axis found from the scan's extents is a guess)"
+    )
+    return M

@@ -9,7 +9,7 @@ scans 4.0–6.3 mm.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from typing import Any
 
@@ -17,12 +17,21 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.errors import FitError
+from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
+from core.matching.hair import find_hair
 from core.registration.correspondence import ScanIndex
-from core.registration.fit import FitResult, Progress, fit, template_operators
+from core.registration.fit import RETRIES, FitResult, Progress, fit, template_operators
 from core.registration.initialization import Similarity
+from core.registration.quality import hand_tip_gap
 from core.registration.schedule import Schedule
-from core.registration.shape_prior import arm_pose, fit_body_prior
+from core.registration.shape_prior import (
+    BONE_PRIOR,
+    HEAD_PRIOR,
+    LIMB_PRIOR,
+    arm_pose,
+    fit_body_prior,
+)
 from core.rig import axis_angle
 from core.scan import Scan
 from core.template import load_template
@@ -146,6 +155,9 @@ def _template_toes() -> np.ndarray:
 ARM_HYPOTHESES = (10.0, 30.0, 50.0)
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
+#: The markerless fit's pose prior (search, first fit, rounds): the arm bones' and the head's.
+MARKERLESS_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR
+
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
 #: of a raw scan, raw-0 of ``core.synth.scanner_outputs``).
@@ -202,11 +214,20 @@ def choose_alignment(
     3. the head of the best (:func:`_head_start`): its neck and head at rest, flexed 0/15/30°,
        when that matches the scan's head better than the search's own.
 
-    Returns the best start and every trial's score.
+    Returns the best start and every trial's score (:func:`search_starts` for all the starts).
     """
+    index = index or ScanIndex(scan)
+    starts, scores = search_starts(scan, index, keep=keep)
+    return _head_start(index, starts[0], scores), scores
+
+
+def search_starts(
+    scan: Scan, index: ScanIndex, *, keep: int = 2
+) -> tuple[list[Start], list[dict[str, Any]]]:
+    """Rounds 1 and 2 of :func:`choose_alignment`: every articulated start, best score first,
+    and every trial's score."""
     tpl = load_template()
     ops = template_operators()
-    index = index or ScanIndex(scan)
     F = np.asarray(tpl.F, dtype=np.int64)
     empty_i, empty_p = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     body_ids = np.flatnonzero(ops.full.data_mask)[::6]
@@ -218,7 +239,8 @@ def choose_alignment(
             iterations=iterations, k_schedule=(0, 0, 6) if articulated else (0,),
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
-            point_weight=SEARCH_POINT_WEIGHT,
+            point_weight=SEARCH_POINT_WEIGHT, limb_prior=LIMB_PRIOR,
+            bone_prior=MARKERLESS_BONE_PRIOR,
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []
@@ -229,7 +251,7 @@ def choose_alignment(
         rigid.append((sc, i, t))
         scores.append({"stage": "rigid", "candidate": i, "score": sc, "coverage": t.coverage})
     rigid.sort(key=lambda r: r[0])
-    best: Start | None = None
+    starts: list[Start] = []
     for _, i, t in rigid[:keep]:
         for abd in ARM_HYPOTHESES:
             pose = arm_pose(abd)
@@ -238,12 +260,17 @@ def choose_alignment(
             label = f"candidate {i}, arms {abd:.0f}°"
             scores.append({"stage": "articulated", "candidate": i, "arms_deg": abd,
                            "score": sc, "coverage": a.coverage})  # fmt: skip
-            if best is None or sc < best.score:
-                best = Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label)
-    assert best is not None
-    best = _head_start(index, best, scores)
-    return best, scores
+            starts.append(Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label))
+    starts.sort(key=lambda st: st.score)
+    return starts, scores
 
+
+#: Articulated starts scoring within this of the best (:func:`two_way_score`) are near-tied:
+#: the markerless fit runs its first shape-space fit from the best two and keeps the better one.
+#: The search's scores of arms 30° and 50° differ by 0.001–0.02 on most real-world-like scans
+#: (``core.synth.scanner_outputs``); closed_lowres-4: 0.882 (a leg on the wrong foot, foot_L
+#: 128 mm off after the fit) vs 0.889 (right).
+TIE_MARGIN = 0.03
 
 #: Total neck flexions (degrees, + forward; head bone at rest) tried against the search's own head.
 HEAD_FLEXIONS = (0.0, 15.0, 30.0)
@@ -303,6 +330,25 @@ def _head_start(index: ScanIndex, start: Start, scores: list[dict[str, Any]]) ->
     )
 
 
+#: The quality retries (:data:`core.registration.fit.RETRIES`) of the last soft-marker round. Its
+#: markers are the landmarks the previous round predicts, on every part: another arm start is
+#: pulled back by the arm's and hand's landmarks, and trusting them fully pulls the body back to
+#: the previous round's; only weighting the lost parts' data (with scan→body pairs) can move a
+#: lost part. Measured on 10 realworld cases that retry (raw-9/16/24, raw_inward-22, cloud-6/18,
+#: closed_plate-3, closed_touching-5, closed_lowres-4/16; each retry a full fit, ~1.8 s CPU): no
+#: retry ever changed the verdict; only the lost-parts one changed the parts named (raw_inward-22:
+#: hands L+R -> L); the arm starts' body priors ended 2-9 mm from the first fit's (raw-24: 151 mm,
+#: failed). Dropping the other three changes the kept attempt of raw-9 (corr 18.55 -> 18.38 mm)
+#: and closed_touching-5 (18.72 -> 21.26 mm), same verdicts and parts; −5.5 s CPU per such fit.
+MARKERLESS_RETRIES = tuple(r for r in RETRIES if "part_weight" in r[1])
+
+
+def _turned(start: Start, M: np.ndarray) -> Start:
+    """``start`` for the scan rotated by ``M`` (3, 3): its similarity followed by ``M``."""
+    sim = start.similarity
+    return replace(start, similarity=Similarity(sim.s, M @ sim.R, M @ sim.t))
+
+
 @single_blas_thread
 def fit_markerless(
     scan: Scan,
@@ -343,34 +389,79 @@ def fit_markerless(
     frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
     check_body_shape(scan.V, scan.F, frame=frame)
     index = ScanIndex(scan)
-    start, scores = choose_alignment(scan, index)
-    best_cov = start.coverage
-    low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
+    starts, scores = search_starts(scan, index)
+    tied = [st for st in starts[:2] if st.score <= starts[0].score + TIE_MARGIN]
+    tied = [_head_start(index, st, scores) for st in tied]
+    if tied[0].similarity.R[1, 1] < 0:  # head-down along the up axis read: turn the scan over
+        M = turn_over(scan)
+        tied = [_turned(st, M) for st in tied if st.similarity.R[1, 1] < 0]
+        index = ScanIndex(scan)
     if soft_marker_rounds < 0:
         raise ValueError(f"soft_marker_rounds must be ≥ 0, got {soft_marker_rounds}")
     rounds = soft_marker_rounds if refine else 0
     sched = (schedule or Schedule.refine()) if refine else Schedule(())
-    prior_options: dict[str, Any] = {
-        "k_schedule": K_SCHEDULE,
-        "iterations": 16,
-        "bidirectional": True,
-        "freeze_pose": 3,
-        "initial_pose": start.pose,
-        "initial_coefficients": start.coefficients,
-    }
-    prior_options.update(options.pop("prior_options", {}) or {})
-    res = fit(
-        scan, {}, initial_similarity=start.similarity,
-        schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
-        callback=callback if rounds == 0 else None, prior_options=prior_options, **options,
-    )  # fmt: skip
+    user_prior = options.pop("prior_options", {}) or {}
+
+    def first_fit(start: Start) -> FitResult:
+        prior_options: dict[str, Any] = {
+            "k_schedule": K_SCHEDULE,
+            "iterations": 16,
+            "bidirectional": True,
+            "freeze_pose": 3,
+            "initial_pose": start.pose,
+            "initial_coefficients": start.coefficients,
+            "limb_prior": LIMB_PRIOR,
+            "bone_prior": MARKERLESS_BONE_PRIOR,
+        }
+        prior_options.update(user_prior)
+        return fit(
+            scan, {}, initial_similarity=start.similarity,
+            schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
+            callback=callback if rounds == 0 else None, prior_options=prior_options, index=index,
+            assess=rounds == 0, head_turn_check=True, **options,
+        )  # fmt: skip
+
+    start, res = tied[0], first_fit(tied[0])
+    tie_note = ""
+    if len(tied) > 1:
+        # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot): the
+        # shape-space fit from each tells them apart where the search's short fits cannot
+        ops = template_operators()
+        body_ids, scan_ids = np.flatnonzero(ops.full.data_mask)[::2], scan_sample(scan, 12000)
+        fits = [(two_way_score(index, r.vertices, body_ids, scan_ids), st, r)
+                for st in tied for r in [res if st is tied[0] else first_fit(st)]]  # fmt: skip
+        _, start, res = min(fits, key=lambda f: f[0])
+        tie_note = "; near-tied starts, the shape-space fit from each scored " + ", ".join(
+            f"{f[1].label} {f[0]:.3f}" for f in fits
+        )
+        scores += [{"stage": "tie", "label": f[1].label, "score": f[0]} for f in fits]
+    best_cov = start.coverage
+    low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     notes = list(res.report.notes)
+    # hair: what stands off the first body (fitted to all the data) over the scalp; not looked
+    # for again around later bodies (a head fitted too low would call its own scalp hair)
+    hair = find_hair(scan, res.vertices) if rounds else None
+    # one KD-tree for every round (and its retry): the scan's, or that of the scan without hair
+    round_index = index if hair is None or hair.scan is scan else ScanIndex(hair.scan)
+    fists = fisted_hands(round_index, res.vertices) if rounds else ""
     for r in range(rounds):
         last = r == rounds - 1
+        assert hair is not None
         res = fit(
-            scan, predicted_landmarks(res.vertices), schedule=sched if last else Schedule(()),
-            callback=callback if last else None, retry=last, **options,
+            hair.scan, predicted_landmarks(res.vertices), schedule=sched if last else Schedule(()),
+            callback=callback if last else None, retry=last, index=round_index, assess=last,
+            retries=MARKERLESS_RETRIES, prior_options={
+                "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
+            },
+            head_turn_check=True, **options,
         )  # fmt: skip
+    if hair is not None and hair.count:
+        res.report.warnings.append(hair.warning())
+    if fists:
+        notes.append(
+            f"hands fitted as fists ({', '.join(fists)}): the open hand's fingertips of the "
+            f"shape-space fit were > {FIST_TIP_GAP_M * 1000:.0f} mm from the scan"
+        )
     if rounds:
         rep = res.report
         n_warn = sum(w.startswith("marker ") for w in rep.warnings)
@@ -385,7 +476,7 @@ def fit_markerless(
         rep.markers_used, rep.markers_dropped, rep.marker_residuals_m = [], [], {}
     res.report.notes.append(
         f"markerless: best of {len(scores)} starts ({start.label}; two-way score "
-        f"{start.score:.3f}, {best_cov * 100:.0f} % of the template within 1.5 cm)"
+        f"{start.score:.3f}, {best_cov * 100:.0f} % of the template within 1.5 cm{tie_note})"
     )
     if low_coverage:
         res.report.warnings.append(
@@ -394,6 +485,27 @@ def fit_markerless(
             f"{res.report.scan_to_fit_mean_m * 1000:.1f} mm mean)"
         )
     return res
+
+
+#: A hand of the first shape-space fit whose fingertips (quality figure ``hand_tip_gap_m``) are
+#: further than this from the scan is fitted as a fist in the soft-marker rounds.
+FIST_TIP_GAP_M = 0.055
+
+
+def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
+    """Sides (``"L"``, ``"R"``) whose hand the soft-marker rounds fit as a fist: the template's
+    open hand of the body ``X`` (13380, 3) leaves its fingertips
+    (:func:`core.registration.quality.hand_tip_gap`) more than :data:`FIST_TIP_GAP_M` from the
+    scan.
+
+    Scanned fists (and closed meshes' fused fists) end 4-5 cm short of an open hand; the data
+    term does not reach the fingers, so the open template hand kept its fingers straight out in
+    the air and its centroid 44-63 mm off the fist's. Fingertip gaps of the first shape-space fit
+    on ``core.synth.scanner_outputs`` cases: fists 70-92 mm (closed_lowres-16, raw-24,
+    closed_plate-27's right hand), open hands 1-44 mm (raw-28 and closed_touching-29, hands
+    33-44 mm off the truth there, read 34-44).
+    """
+    return "".join(x for x in "LR" if hand_tip_gap(index, X, x) > FIST_TIP_GAP_M)
 
 
 def predicted_landmarks(V: np.ndarray) -> dict[str, np.ndarray]:

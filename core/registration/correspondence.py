@@ -46,6 +46,7 @@ class ScanIndex:
 
     def __init__(self, scan: Scan, *, confidence_full_at: float = 0.2) -> None:
         self.scan = scan
+        self.confidence_full_at = confidence_full_at
         self.points = np.ascontiguousarray(scan.V, dtype=np.float64)
         self.normals = np.ascontiguousarray(scan.normals, dtype=np.float64)
         self.point_weight = confidence_weight(scan.confidence, confidence_full_at)

@@ -36,7 +36,7 @@ from core.registration.operators import (
 )
 from core.registration.quality import SAMPLE_POINTS, FitQuality, assess_fit, part_labels
 from core.registration.schedule import Schedule, Stage
-from core.registration.shape_prior import PriorOptions, arm_pose, fit_body_prior
+from core.registration.shape_prior import PriorFit, PriorOptions, arm_pose, fit_body_prior
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
@@ -123,6 +123,8 @@ class FitResult:
         (:func:`core.transfer.colour.colour_fit`), else None.
     texture : (1024, 1024, 3) uint8 texture on the template UV layout from a textured scan
         (:func:`core.transfer.colour.colour_fit`), else None.
+    body_prior : the body prior the refinement started from (shape coefficients, bone
+        rotations, similarity: ``core.registration.shape_prior.PriorFit``), None without it.
     """
 
     vertices: np.ndarray
@@ -132,6 +134,7 @@ class FitResult:
     report: FitReport
     colors: np.ndarray | None = None
     texture: np.ndarray | None = None
+    body_prior: PriorFit | None = None
 
 
 class FitCancelled(Exception):  # noqa: N818 (a cancellation, not an error)
@@ -194,6 +197,13 @@ def _check_scan(scan: Scan) -> None:
             raise FitError(f"scan.{name} must have one entry per point ({len(V)})")
 
 
+def _scan_index(scan: Scan, index: ScanIndex | None, confidence_full_at: float) -> ScanIndex:
+    """``index`` when it is this scan's with this confidence ramp, else a new one."""
+    if index is None or index.scan is not scan or index.confidence_full_at != confidence_full_at:
+        index = ScanIndex(scan, confidence_full_at=confidence_full_at)
+    return index
+
+
 def iter_fit(
     scan: Scan,
     markers: dict[str, np.ndarray],
@@ -212,6 +222,9 @@ def iter_fit(
     prior_options: PriorOptions | dict[str, Any] | None = None,
     marker_trust: float | None = None,
     part_weights: dict[str, float] | None = None,
+    index: ScanIndex | None = None,
+    assess: bool = True,
+    head_turn_check: bool = False,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -239,6 +252,13 @@ def iter_fit(
         for markers that agree with their neighbours, 0 for the others); a retry sets 1.
     part_weights : quality part name (``core.registration.quality.PARTS``) -> multiplier of
         that part's data weight in the body prior (a retry raises a lost part's).
+    index : the scan's KD-tree index (``ScanIndex(scan, confidence_full_at=...)``) when the
+        caller fits the same scan several times (markerless rounds, retries); built otherwise.
+    assess : measure the result (scan→fit distances, per-part quality check). False for an
+        intermediate fit whose vertices alone are used (markerless rounds): the report's
+        distances stay NaN and its ``quality`` None (saves ~0.25 s CPU per fit).
+    head_turn_check : judge the head's turn against the torso (``head_turn_deg``) in the quality
+        check; the markerless fit's, not a marker fit's (see ``core.registration.quality``).
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -258,7 +278,7 @@ def iter_fit(
     if scan.frame is not None:
         report.units, report.up = scan.frame.units, scan.frame.up
 
-    index = ScanIndex(scan, confidence_full_at=confidence_full_at)
+    index = _scan_index(scan, index, confidence_full_at)
     markers, align, consistent = screen_and_align(
         index, tpl, markers, report,
         marker_far_distance=marker_far_distance,
@@ -290,7 +310,7 @@ def iter_fit(
     yield final_report(
         scan, index, ops, full, frame, body, state, report,
         max_distance=max_distance, max_angle_deg=max_angle_deg,
-        shape_prior=shape_prior, t_start=t_start,
+        shape_prior=shape_prior, t_start=t_start, assess=assess, head_turn_check=head_turn_check,
     )  # fmt: skip
 
 
@@ -355,12 +375,14 @@ class InitialBody:
     V : (13380, 3) metres (the prior's posed, personalised body, already in the scan frame; or
     the template). sim : template-side → scan similarity still to apply (identity after the
     prior). marker_vid : (km,) marked vertices. marker_w : (km,) robust marker weights (E_m).
+    prior : the body prior's fit (None without the shape prior).
     """
 
     V: np.ndarray
     sim: Similarity
     marker_vid: np.ndarray
     marker_w: np.ndarray
+    prior: PriorFit | None = None
 
 
 def initial_body(
@@ -429,7 +451,9 @@ def initial_body(
             )
             report.warnings.append(f"marker {name} is {r * 100:.1f} cm from the fitted body: {how}")
     report.marker_weights = {k: float(w) for k, w in zip(align.used, marker_w, strict=True)}
-    return InitialBody(prior.X, Similarity(1.0, np.eye(3), np.zeros(3)), marker_vid, marker_w)
+    return InitialBody(
+        prior.X, Similarity(1.0, np.eye(3), np.zeros(3)), marker_vid, marker_w, prior
+    )
 
 
 @dataclass
@@ -604,9 +628,12 @@ def final_report(
     max_angle_deg: float,
     shape_prior: bool,
     t_start: float,
+    assess: bool = True,
+    head_turn_check: bool = False,
 ) -> FitResult:
     """Final report: the fitted body in metres, its data weights and no-data fraction, the
-    scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``)."""
+    scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``);
+    without ``assess`` only the body and its data weights."""
     F_full = np.asarray(ops.template.F, dtype=np.int64)
     if state.level is None or state.x is None:  # no refinement stage: the body prior's result
         A = np.broadcast_to(frame.A0, (full.n, 3, 4)).copy()
@@ -620,6 +647,14 @@ def final_report(
         X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg
     )
     weights_full = final.weights * ops.full.data_mask
+    report.no_data_fraction = float(np.mean(~(final.weights > 0)))
+    report.template_region_fraction = float(np.mean(~ops.full.data_mask))
+    if not assess:
+        report.seconds = time.perf_counter() - t_start
+        return FitResult(
+            vertices=X, faces=F_full, affines=frame.affines_to_world(A),
+            data_weight=weights_full, report=report,
+        )  # fmt: skip
     # scan→fit distance on a fixed subsample of scan points, shared with the per-part check
     sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), SAMPLE_POINTS)).astype(np.int64)
     d = MeshDistance(X, F_full, k=3).distances(scan.V[sample])
@@ -632,15 +667,14 @@ def final_report(
         scan_to_fit=d,
         sample_ids=sample,
         reference=body.V if shape_prior else None,
+        head_turn_check=head_turn_check,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
-    report.no_data_fraction = float(np.mean(~(final.weights > 0)))
-    report.template_region_fraction = float(np.mean(~ops.full.data_mask))
     report.seconds = time.perf_counter() - t_start
     return FitResult(
         vertices=X, faces=F_full, affines=frame.affines_to_world(A), data_weight=weights_full,
-        report=report,
+        report=report, body_prior=body.prior,
     )  # fmt: skip
 
 
@@ -699,6 +733,10 @@ def fit(
     prior_options: PriorOptions | dict[str, Any] | None = None,
     marker_trust: float | None = None,
     part_weights: dict[str, float] | None = None,
+    index: ScanIndex | None = None,
+    assess: bool = True,
+    retries: tuple[tuple[str, dict[str, Any]], ...] = RETRIES,
+    head_turn_check: bool = False,
 ) -> FitResult:
     """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
@@ -712,7 +750,10 @@ def fit(
     weight; the parts that are not good weighted ×4 with scan→body pairs), and the best result
     is kept (verdict, then parts not good, then their scan→fit p95, then the scan's: see
     ``_score``): at most 1 + ``len(RETRIES)`` fits. The report's notes list the attempts; a part
-    still lost stays in the verdict with its name.
+    still lost stays in the verdict with its name. ``retries``: the retries to try (a subset of
+    :data:`RETRIES`, in its order; the markerless fit keeps only those its own landmarks do not
+    undo, :data:`core.matching.markerless.MARKERLESS_RETRIES`). Without ``assess`` (see
+    :func:`iter_fit`) there is no quality check and so no retry.
     """
     options: dict[str, Any] = {
         "schedule": schedule, "template": template, "max_distance": max_distance,
@@ -720,8 +761,11 @@ def fit(
         "marker_far_distance": marker_far_distance, "n_low": n_low, "unit_scale": unit_scale,
         "shape_prior": shape_prior, "marker_outlier_distance": marker_outlier_distance,
         "initial_similarity": initial_similarity, "prior_options": prior_options,
-        "marker_trust": marker_trust, "part_weights": part_weights,
+        "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
+        "head_turn_check": head_turn_check,
     }  # fmt: skip
+    _check_scan(scan)  # before the KD-tree (a NaN point is a FitError, not scipy's ValueError)
+    options["index"] = _scan_index(scan, index, confidence_full_at)  # shared by the retries
     res = _run(scan, markers, callback, options)
     q = res.report.quality
     if not retry or q is None or q.quality == "good" or not shape_prior:
@@ -729,7 +773,7 @@ def fit(
     attempts = [f"first fit: {q.quality}"]
     best = res
     start = PriorOptions.of(prior_options).initial_pose  # the best attempt's body-prior start
-    for name, opt in RETRIES:
+    for name, opt in retries:
         bq = best.report.quality
         assert bq is not None
         if bq.quality == "good":

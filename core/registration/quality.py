@@ -38,11 +38,33 @@ Per part (all distances metres):
   sits on the forearm's data (coverage, fit→scan and area look fine) but leaves the real hand's
   scan points beyond it; mitten and fist hands end where the fitted hand ends or before;
 - ``hand_bend_deg`` (hands only): angle between the forearm axis and the direction from the wrist
-  to the hand's centroid (a hand folded back or off the arm's end; 14-18° on good fits and on the
-  truth of every benchmark body — scanning postures keep the wrists straight);
-- ``hand_proportion`` (hands only): ``max(r, 1/r)``, ``r`` = the hand's reach beyond the wrist
-  (along the forearm axis) per forearm length, over the template's (0.76); a hand slid up a
-  shortened forearm or stretched along it (0.87-1.13 on good fits, 0.91-1.07 on the truths).
+  to the centroid of the hand without its fingers (the template's ``bad_scan`` vertices; a hand
+  folded back or off the arm's end; 12-14° on the truths of open and fisted hands alike, 12-21°
+  on good fits — scanning postures keep the wrists straight);
+- ``hand_proportion`` (hands only): ``max(r, 1/r)``, ``r`` = the reach of the hand without its
+  fingers beyond the wrist (along the forearm axis) per forearm length, over the template's
+  (0.43); a hand slid up a shortened forearm or stretched along it (1.00-1.10 on the truths of
+  open and fisted hands, 1.01-1.19 on good fits). Without the fingers both figures read a fist
+  as they read an open hand (with them, true fists read 27-30° and 1.56-1.66).
+- ``hand_tip_gap_m`` (hands only): median distance to the scan surface of the fitted hand's
+  furthest tenth of vertices along the forearm axis (the fingertips, which the data term does not
+  pull): an open template hand fitted to a fist leaves its fingers 4-9 cm out in the air while
+  the wrist and the back of the hand sit on the data (``core.synth.scanner_outputs`` fist cases
+  closed_lowres-16/24/26, raw-16/24: 46-86 mm, hand centroids 44-63 mm off the truth's); good
+  fits of open and mitten hands read 2-16 mm, the truths 1-11 mm.
+- ``head_turn_deg`` (head only, else NaN): the angle of the head's rotation against the torso
+  (head frame: tragion R → L, tragion midpoint → sellion; torso frame: acromion R → L, ASIS
+  midpoint → acromion midpoint) from the template's (:func:`head_turn`). A head fitted flexed,
+  turned or tilted on the skull's data keeps its scan→fit, fit→scan and coverage (the skull is
+  nearly round): markerless fits of ``core.synth.scanner_outputs`` raw-19 read 69° with scan→fit
+  p95 5 mm, its head 72 mm and 58° off the truth's (`good` before this figure); closed_plate-27
+  and raw_clutter-10 60-69° (64 and 107 mm off), dense-23 39° (36 mm off) — before the markerless
+  head prior (:data:`core.registration.shape_prior.HEAD_PRIOR`; raw-19 after it: 17°, 13 mm).
+  Marker fits: closed_touching-17's retries 73-107° (53-108 mm off). Scanning protocols keep the
+  head facing forward: truths of ``core.synth.realworld`` postures (neck flexion ≤ 20°, yaw
+  ±15°, roll ±5°; seeds 0-39, free and touching arms) read 2-27°, ``bench.cases`` truths 5-14°,
+  good fits 2-25° (raw-4/9/12/16/20/24, raw_inward-22, closed_lowres-8/14, closed_plate-3,
+  closed_hair-1).
 
 Thresholds (``THRESHOLDS``; calibrated on simulated scans ``bench.cases`` and on deliberately
 broken copies of good fits — a part moved by 3-15 cm or collapsed towards its joint; see
@@ -58,6 +80,8 @@ displacement            > 10 mm      > 25 mm
 data beyond the hand    > 25 mm      > 40 mm
 hand bend               > 30°        > 45°
 hand proportion         > 1.25       > 1.40
+hand tip gap            > 30 mm      never
+head turn               > 35°        > 50°
 ======================  ===========  ==========
 
 and a part is also ``failed`` when scan data around it is unexplained (scan→fit p95 > 25 mm)
@@ -135,10 +159,12 @@ THRESHOLDS: dict[str, Threshold] = {
     "data_beyond_m": Threshold(0.025, 0.040),
     "hand_bend_deg": Threshold(30.0, 45.0),
     "hand_proportion": Threshold(1.25, 1.40),
+    "hand_tip_gap_m": Threshold(0.030, float("inf")),
+    "head_turn_deg": Threshold(35.0, 50.0),
 }
 #: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
-UNSCALED = ("data_beyond_m", "hand_bend_deg", "hand_proportion")
-HAND_FIGURES = UNSCALED
+HAND_FIGURES = ("data_beyond_m", "hand_bend_deg", "hand_proportion", "hand_tip_gap_m")
+UNSCALED = (*HAND_FIGURES, "head_turn_deg")
 BEYOND_MIN_POINTS = 20
 BEYOND_RADIUS_M = 0.10
 BEYOND_UNEXPLAINED_M = 0.010
@@ -162,6 +188,8 @@ class PartQuality:
     data_beyond_m: float = float("nan")
     hand_bend_deg: float = float("nan")
     hand_proportion: float = float("nan")
+    hand_tip_gap_m: float = float("nan")
+    head_turn_deg: float = float("nan")
 
 
 @dataclass
@@ -245,6 +273,16 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
                 f"{part}: hand/forearm proportion {v:.2f}× the template's "
                 "(hand slid along a shortened forearm?)"
             )
+        elif key == "hand_tip_gap_m":
+            reasons.append(
+                f"{part}: its fingertips are {v * 1000:.0f} mm from the scan "
+                "(an open hand fitted to a fist?)"
+            )
+        elif key == "head_turn_deg":
+            reasons.append(
+                f"{part}: turned {v:.0f}° against the torso (a scanning posture faces forward; "
+                "head fitted tilted or turned on its data?)"
+            )
         elif key == "scan_to_fit_p95_m":
             reasons.append(f"{part}: scan→fit p95 {v * 1000:.0f} mm")
         else:
@@ -270,6 +308,22 @@ def _forearm_frame(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray,
     return wrist, a / length, length
 
 
+def _hand_tips(X: np.ndarray, side: str, tpl: Template) -> np.ndarray:
+    """Vertex ids of the furthest tenth of the hand's vertices along the forearm axis."""
+    ids = np.flatnonzero(tpl.part_mask(f"hand_{side}"))
+    wrist, a, _ = _forearm_frame(X, side, tpl)
+    along = (X[ids] - wrist) @ a
+    return ids[along >= np.percentile(along, 90)]
+
+
+def hand_tip_gap(index: ScanIndex, X: np.ndarray, side: str) -> float:
+    """``hand_tip_gap_m`` of hand ``side`` (``"L"``/``"R"``) of the body ``X`` (13380, 3): the
+    median distance of its fingertips to the scan surface, metres (module docstring)."""
+    tpl = load_template()
+    tips = _hand_tips(X, side, tpl)
+    return float(np.median(fit_to_scan_distance(index, X[tips])))
+
+
 def hand_figures(
     X: np.ndarray,
     P: np.ndarray,
@@ -277,12 +331,15 @@ def hand_figures(
     side: str,
     template: Template | None = None,
     p_part16: np.ndarray | None = None,
+    fit_to_scan: np.ndarray | None = None,
 ) -> dict[str, float]:
-    """Where the fitted hand sits on its arm: data beyond it, bend and proportion (see below).
+    """Where the fitted hand sits on its arm: data beyond it, bend, proportion, tip gap.
 
     ``X`` (13380, 3) fitted body; ``P`` (q, 3) scan points with distances ``scan_to_fit`` (q,) to
     the fitted surface; ``p_part16`` (q,) the template part of each point's nearest fitted vertex
-    (computed when omitted); ``side`` ``"L"`` or ``"R"``. ``data_beyond_m``: the points of this
+    (computed when omitted); ``side`` ``"L"`` or ``"R"``; ``fit_to_scan`` (13380,) each fitted
+    vertex's distance to the scan surface (:func:`fit_to_scan_distance`; without it the tip
+    gap is NaN). ``data_beyond_m``: the points of this
     side's forearm or hand within ``BEYOND_RADIUS_M`` of the forearm axis line and further than
     ``BEYOND_UNEXPLAINED_M`` from the fit are projected on the axis; the ``BEYOND_MIN_POINTS``-th
     largest projection minus the fitted hand's furthest (0 when fewer points lie beyond).
@@ -290,14 +347,15 @@ def hand_figures(
     """
     tpl = template or load_template()
     hand = tpl.part_mask(f"hand_{side}")
+    palm = hand & ~np.asarray(tpl.bad_scan_mask, dtype=bool)  # the hand without its fingers
     wrist, a, fore_len = _forearm_frame(X, side, tpl)
     reach = float(((X[hand] - wrist) @ a).max())
-    c = X[hand].mean(axis=0) - wrist
+    c = X[palm].mean(axis=0) - wrist
     cos = float(c @ a) / max(float(np.linalg.norm(c)), 1e-12)
     bend = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
     t_wrist, t_a, t_len = _forearm_frame(tpl.V, side, tpl)
-    t_ratio = float(((tpl.V[hand] - t_wrist) @ t_a).max()) / t_len
-    r = max(reach / fore_len / t_ratio, 1e-9)
+    t_ratio = float(((tpl.V[palm] - t_wrist) @ t_a).max()) / t_len
+    r = max(float(((X[palm] - wrist) @ a).max()) / fore_len / t_ratio, 1e-9)
     if p_part16 is None:
         from scipy.spatial import cKDTree
 
@@ -311,7 +369,43 @@ def hand_figures(
     beyond = 0.0
     if sel.sum() >= BEYOND_MIN_POINTS:
         beyond = float(np.sort(s[sel])[-BEYOND_MIN_POINTS] - reach)
-    return {"data_beyond_m": beyond, "hand_bend_deg": bend, "hand_proportion": max(r, 1.0 / r)}
+    gap = float("nan")
+    if fit_to_scan is not None:
+        gap = float(np.median(fit_to_scan[_hand_tips(X, side, tpl)]))
+    return {
+        "data_beyond_m": beyond,
+        "hand_bend_deg": bend,
+        "hand_proportion": max(r, 1.0 / r),
+        "hand_tip_gap_m": gap,
+    }
+
+
+def _head_frame(X: np.ndarray, tpl: Template) -> np.ndarray:
+    """(3, 3) rotation of the head against the torso: columns lateral, up, forward of the head
+    (tragion R → L; tragion midpoint → sellion) expressed in the torso's frame (acromion R → L;
+    ASIS midpoint → acromion midpoint)."""
+    lm = tpl.landmarks
+
+    def frame(lateral: np.ndarray, towards: np.ndarray, forward: bool) -> np.ndarray:
+        x = lateral / np.linalg.norm(lateral)
+        t = towards - (towards @ x) * x
+        t = t / np.linalg.norm(t)
+        return np.stack([x, np.cross(t, x), t] if forward else [x, t, np.cross(x, t)], axis=1)
+
+    tr_l, tr_r = X[lm["Tragion_L"]], X[lm["Tragion_R"]]
+    head = frame(tr_l - tr_r, X[lm["Sellion"]] - 0.5 * (tr_l + tr_r), forward=True)
+    ac_l, ac_r = X[lm["Acromion_L"]], X[lm["Acromion_R"]]
+    hips = 0.5 * (X[lm["ASIS_L"]] + X[lm["ASIS_R"]])
+    torso = frame(ac_l - ac_r, 0.5 * (ac_l + ac_r) - hips, forward=False)
+    return torso.T @ head
+
+
+def head_turn(X: np.ndarray, template: Template | None = None) -> float:
+    """``head_turn_deg`` of the body ``X`` (13380, 3): the angle of the rotation taking the
+    template's head-against-torso orientation to this body's (:func:`_head_frame`), degrees."""
+    tpl = template or load_template()
+    R = _head_frame(tpl.V, tpl).T @ _head_frame(np.asarray(X, dtype=np.float64), tpl)
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _triangle_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -351,6 +445,7 @@ def assess_fit(
     scan_to_fit: np.ndarray | None = None,
     sample_ids: np.ndarray | None = None,
     reference: np.ndarray | None = None,
+    head_turn_check: bool = True,
 ) -> FitQuality:
     """Judge the fitted body ``X`` (13380, 3), metres, against ``scan`` (same frame).
 
@@ -358,7 +453,10 @@ def assess_fit(
     points ``sample_ids`` to the fitted surface; otherwise an evenly spaced subsample of at most
     ``sample`` scan points is measured. ``reference`` (13380, 3): the body the fit started from
     (for ``area_change``; default the template). Returns a :class:`FitQuality` (thresholds: module
-    docstring).
+    docstring). ``head_turn_check`` False: ``head_turn_deg`` is reported but not judged (a marker
+    fit: its landmark vertices follow the user's markers, whose placement conventions move the
+    tragion and sellion vertices by centimetres — measured on ``bench.realworld --markers``:
+    correct heads 3-13 mm off the truth read 36-174°).
     """
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
@@ -420,10 +518,12 @@ def assess_fit(
             "area_change": float(area_change[i]),
             "displacement_m": disp,
             **dict.fromkeys(HAND_FIGURES, float("nan")),
+            "head_turn_deg": head_turn(X, tpl) if name == "head" else float("nan"),
         }
         if name.startswith("hand_"):
-            figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16))
-        pv, pr = _judge(name, figures)
+            figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16, f2s))
+        judged = figures if head_turn_check else {**figures, "head_turn_deg": float("nan")}
+        pv, pr = _judge(name, judged)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
             (reference is not None and figures["area_change"] > LOST_AREA_CHANGE)
@@ -455,6 +555,8 @@ def assess_fit(
             data_beyond_m=figures["data_beyond_m"],
             hand_bend_deg=figures["hand_bend_deg"],
             hand_proportion=figures["hand_proportion"],
+            hand_tip_gap_m=figures["hand_tip_gap_m"],
+            head_turn_deg=figures["head_turn_deg"],
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:

@@ -22,19 +22,21 @@ the markers-only fit (``fit_markers_only(basis=...)``) and the markerless search
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from core.registration.correspondence import ScanIndex
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
-from core.rig import Rig, bone_transforms, joint_positions, load_rig
+from core.rig import Rig, bone_transforms, finger_rotations, joint_positions, load_rig
 
 if TYPE_CHECKING:
     from core.shapespace.pca import PCA
@@ -145,6 +147,29 @@ BONE_PRIOR: tuple[tuple[str, float, float], ...] = (
     ("wrist.L", 0.1, 0.01), ("wrist.R", 0.1, 0.01),
     ("lowerarm01.L", 0.03, 0.003), ("lowerarm01.R", 0.03, 0.003),
 )  # fmt: skip
+#: The markerless fit's prior on the head's and neck's total rotation (same units as
+#: :data:`BONE_PRIOR`, added to it): scanning postures keep the head facing forward, and a nearly
+#: round skull's data barely turn it, so without markers the fit left heads flexed or turned
+#: 40-69° on their data (``core.synth.scanner_outputs`` raw-19, closed_plate-27, raw_clutter-10:
+#: 64-107 mm off the truth). 0.03 turned them back only to 28-53° (raw-19 still 73 mm off); 0.1
+#: on the head bone alone left raw-19 at 47° (74 mm); 0.1 on head and neck01: 17-24°, 13-29 mm.
+HEAD_PRIOR: tuple[tuple[str, float, float], ...] = (("neck01", 0.1, 0.1), ("head", 0.1, 0.1))
+
+
+#: Limb chains ``(root, middle, end)`` (rig bones whose heads are the shoulder, elbow and wrist
+#: joints) whose middle joint :func:`fit_body_prior` keeps near its template share of the way
+#: from root to end (``limb_prior``).
+LIMB_CHAINS: tuple[tuple[str, str, str], ...] = (
+    ("upperarm01.L", "lowerarm01.L", "wrist.L"), ("upperarm01.R", "lowerarm01.R", "wrist.R"),
+)  # fmt: skip
+#: Curl (degrees per finger joint) of a fisted hand in the body prior (``fit_body_prior(fists=)``):
+#: the middle of the 55-80° of ``core.synth.realworld``'s fists.
+FIST_CURL_DEG = 70.0
+#: Weight of the limb-proportion prior (``fit_body_prior(limb_prior=)``) of the markerless fit,
+#: per m² of the elbow's offset along the shoulder→wrist axis from its template share, in units
+#: of one data row (100-10 000 give the same arms on raw-16/28 and closed_lowres-24; markers
+#: place the elbows of a marker fit, whose default is 0).
+LIMB_PRIOR = 100.0
 
 
 def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
@@ -193,6 +218,8 @@ class PriorOptions:
     point_weight: float = 0.0
     basis: ShapeBasis | None = None
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
+    limb_prior: float = 0.0
+    fists: str = ""
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -255,15 +282,6 @@ def marker_weights(
     return np.maximum(floor, 1.0 / (1.0 + (np.asarray(residuals) / s) ** 2))
 
 
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(r, 3) vectors -> (r, 3, 3) matrices [v]_× (so [v]_× w = v × w)."""
-    Z = np.zeros((len(v), 3, 3))
-    Z[:, 0, 1], Z[:, 0, 2] = -v[:, 2], v[:, 1]
-    Z[:, 1, 0], Z[:, 1, 2] = v[:, 2], -v[:, 0]
-    Z[:, 2, 0], Z[:, 2, 1] = -v[:, 1], v[:, 0]
-    return Z
-
-
 def _scan_to_template(
     index: ScanIndex,
     X: np.ndarray,
@@ -294,8 +312,11 @@ def _scan_to_template(
 class _Articulation:
     """LBS of a shaped body with per-bone local rotations, and its Jacobians."""
 
-    def __init__(self, rig: Rig, bones: tuple[str, ...]) -> None:
+    def __init__(
+        self, rig: Rig, bones: tuple[str, ...], fixed: dict[str, np.ndarray] | None = None
+    ) -> None:
         self.rig = rig
+        self.fixed = dict(fixed or {})  # bone -> local rotation held fixed (fingers of a fist)
         self.bones = [rig.index(b) for b in bones]
         self.names = bones
         J = rig.n_joints
@@ -305,56 +326,58 @@ class _Articulation:
         self.r = rig.skin_rows.astype(np.int64)
         self.c = rig.skin_cols.astype(np.int64)
         self.w = rig.skin_vals.astype(np.float64)
+        # (4J, 4B): joint j's sums -> pose bone a's (j below or at a), for W and y's 3 coordinates
+        self.desc4 = np.kron(np.eye(4), self.desc.T.astype(np.float64))
+        self.skin = sp.csr_matrix((self.w, (self.r, self.c)), shape=(rig.n_vertices, J))
 
     def pose(self, rest: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, dict]:
         """Posed vertices (n, 3) and the quantities the Jacobian needs."""
         rig = self.rig
         joints = joint_positions(rest, rig=rig)
-        rot = {rig.names[j]: local[a] for a, j in enumerate(self.bones)}
-        R, t = bone_transforms(rot, joints, rig=rig)
-        moved = np.einsum("eab,eb->ea", R[self.c], rest[self.r]) + t[self.c]
+        rot = {**self.fixed, **{rig.names[j]: local[a] for a, j in enumerate(self.bones)}}
+        # proper by construction (the prior's updates, core.rig.finger_rotations): not re-checked
+        R, t = bone_transforms(rot, joints, rig=rig, validate=False)
         n = len(rest)
-        X = np.stack(
-            [np.bincount(self.r, self.w * moved[:, k], minlength=n) for k in range(3)], axis=1
-        )
+        # LBS Σ_b w_ib (R_b x_i + t_b) = (Σ_b w_ib R_b) x_i + Σ_b w_ib t_b: one sparse product
+        Rt = self.skin @ np.hstack([R.reshape(-1, 9), t])  # (n, 12)
+        Rb = Rt[:, :9].reshape(n, 3, 3)
+        X = np.einsum("nab,nb->na", Rb, rest) + Rt[:, 9:]
         posed_joints = np.einsum("jab,jb->ja", R, joints) + t
-        return X, {"moved": moved, "R": R, "pj": posed_joints, "n": n}
+        return X, {"rest": rest, "R": R, "t": t, "Rb": Rb, "pj": posed_joints, "n": n}
 
     def blended_rotations(self, aux: dict, rows: np.ndarray) -> np.ndarray:
         """Skin-weighted bone rotations Σ_b w_ib R_b at vertices ``rows``: (len(rows), 3, 3)."""
-        n = aux["n"]
-        pos = np.full(n, -1)
-        pos[rows] = np.arange(len(rows))
-        e = pos[self.r] >= 0
-        rr, c, w = pos[self.r[e]], self.c[e], self.w[e]
-        Rc = aux["R"][c].reshape(-1, 9) * w[:, None]
-        out = np.stack([np.bincount(rr, Rc[:, q], minlength=len(rows)) for q in range(9)], axis=1)
-        return out.reshape(len(rows), 3, 3)
+        return aux["Rb"][rows]
 
     def pose_jacobian(self, aux: dict, rows: np.ndarray) -> np.ndarray:
         """d X[rows] / d ω (world-frame rotation increments): (len(rows), 3, 3·B)."""
-        n = aux["n"]
-        moved = aux["moved"]
-        sel = np.zeros(n, dtype=bool)
-        sel[rows] = True
-        e = sel[self.r]
-        r, c, w, mv = self.r[e], self.c[e], self.w[e], moved[e]
+        n, nr, B, J = aux["n"], len(rows), len(self.bones), self.rig.n_joints
         pos = np.full(n, -1)
-        pos[rows] = np.arange(len(rows))
-        rr = pos[r]
-        out = np.zeros((len(rows), 3, 3 * len(self.bones)))
-        for a, j in enumerate(self.bones):
-            m = self.desc[a, c]
-            if not m.any():
-                continue
-            Wa = np.bincount(rr[m], w[m], minlength=len(rows))
-            ya = np.stack(
-                [np.bincount(rr[m], w[m] * mv[m, k], minlength=len(rows)) for k in range(3)],
-                axis=1,
-            )
-            v = ya - Wa[:, None] * aux["pj"][j]
-            out[:, :, 3 * a : 3 * a + 3] = -_skew_rows(v)
+        pos[rows] = np.arange(nr)
+        e = np.flatnonzero(pos[self.r] >= 0)
+        # per row and pose bone a: W_a = Σ w_e and y_a = Σ w_e·moved_e over the row's skin
+        # entries whose joint a carries: sums per (row, joint), then joints -> pose bones
+        w, c = self.w[e], self.c[e]
+        mv = np.einsum("eab,eb->ea", aux["R"][c], aux["rest"][self.r[e]]) + aux["t"][c]
+        S = sp.csr_matrix(
+            (np.r_[w, w * mv[:, 0], w * mv[:, 1], w * mv[:, 2]],
+             (np.tile(pos[self.r[e]], 4), np.r_[c, c + J, c + 2 * J, c + 3 * J])),
+            shape=(nr, 4 * J),
+        )  # fmt: skip
+        Y = S @ self.desc4  # (nr, 4B): W, y_x, y_y, y_z
+        Wa, pj = Y[:, :B], aux["pj"][self.bones]
+        vx, vy, vz = (Y[:, (k + 1) * B : (k + 2) * B] - Wa * pj[:, k] for k in range(3))
+        out = np.zeros((nr, 3, 3 * B))  # -[v]_× per bone, bone a in columns 3a..3a+2
+        out[:, 0, 1::3], out[:, 0, 2::3] = vz, -vy
+        out[:, 1, 0::3], out[:, 1, 2::3] = -vz, vx
+        out[:, 2, 0::3], out[:, 2, 1::3] = vy, -vx
         return out
+
+
+@cache
+def _articulation() -> _Articulation:
+    """The body prior's articulation of the standard rig (:data:`POSE_BONES`), built once."""
+    return _Articulation(load_rig(), POSE_BONES)
 
 
 def _bone_metrics(
@@ -378,6 +401,28 @@ def _bone_metrics(
         P = np.outer(d, d)
         out.append((a, bend * (np.eye(3) - P) + twist * P))
     return out
+
+
+def _limb_rows(V0: np.ndarray, U: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (m, k) and offsets (m,) of the limb-proportion prior: for each of
+    :data:`LIMB_CHAINS`, the middle joint's offset (metres) along the rest root→end axis from the
+    point at the template's share of the way, ``G @ c + g0`` for shape coefficients ``c`` (the
+    joints are linear in the vertices: ``core.rig.joint_positions``)."""
+    idx, w = rig.head_reg_idx, rig.head_reg_w
+
+    def joint(name: str) -> tuple[np.ndarray, np.ndarray]:
+        j = rig.index(name)
+        return w[j] @ V0[idx[j]], np.einsum("q,qck->ck", w[j], U[idx[j]])
+
+    G, g0 = [], []
+    for a, b, e in LIMB_CHAINS:
+        (pa, Ga), (pb, Gb), (pe, Ge) = joint(a), joint(b), joint(e)
+        axis = pe - pa
+        share = float((pb - pa) @ axis / (axis @ axis))
+        u = axis / np.linalg.norm(axis)
+        G.append(u @ (Gb - (1.0 - share) * Ga - share * Ge))
+        g0.append(float(u @ (pb - (1.0 - share) * pa - share * pe)))
+    return np.array(G), np.array(g0)
 
 
 def fit_body_prior(
@@ -409,6 +454,8 @@ def fit_body_prior(
     max_angle_deg: float = 60.0,
     point_weight: float = 0.0,
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
+    limb_prior: float = 0.0,
+    fists: str = "",
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -451,6 +498,16 @@ def fit_body_prior(
     bone_prior : ``(bone, bend, twist)`` weights of a prior on those bones' total rotation
         (:data:`BONE_PRIOR`: wrists and elbows); ``()`` leaves every bone free (the pose
         prior then only damps each iteration's step).
+    limb_prior : weight (per m², in units of one data row) of the elbows' offset along the
+        shoulder→wrist axis of the rest body from their template share of the way
+        (:data:`LIMB_CHAINS`; the markerless fit's :data:`LIMB_PRIOR`); 0 (default) leaves it
+        to the shape prior and the markers. Point-to-plane data barely tell
+        where along a nearly straight arm the elbow is: without it the shape space slid the
+        elbows of heavy bodies 10-16 cm down the arm (rest forearm / upper arm 0.29-0.66,
+        truths 0.87-0.96; ``core.synth.scanner_outputs`` raw-16/28, closed_lowres-16/24), arm
+        centroids 51-84 mm off the truth's.
+    fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
+        (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -461,7 +518,23 @@ def fit_body_prior(
         V0 = basis.mean
     U, sigma = basis.U, basis.sigma
     n, k = len(V0), basis.k
-    art = _Articulation(load_rig(), POSE_BONES)
+    U2 = U.reshape(3 * n, k)  # (3n, k) view: U @ c as one matrix-vector product
+
+    def shaped(c: np.ndarray) -> np.ndarray:
+        return V0 + (U2 @ c).reshape(n, 3)
+
+    art = _articulation()
+    if fists:  # the cached articulation with these hands' fingers curled (held fixed)
+        art = copy.copy(art)
+        J0 = joint_positions(V0, rig=art.rig)
+        tails = joint_positions(V0, rig=art.rig, ends="tail")
+        art.fixed = {  # a new dict: the cached articulation keeps its open hands
+            name: R
+            for x in fists
+            for name, R in finger_rotations(
+                J0, tails, f".{x}", True, FIST_CURL_DEG, rig=art.rig
+            ).items()
+        }
     B = len(POSE_BONES)
     mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
     sub = np.zeros(n, bool)
@@ -479,8 +552,9 @@ def fit_body_prior(
     w = np.zeros(0)
     damping = 1e-3
     rms_d = float("nan")
-    Xp, aux = art.pose(V0 + U @ c, local)
+    Xp, aux = art.pose(shaped(c), local)
     bone_M = _bone_metrics(art, V0, bone_prior)
+    G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -552,23 +626,25 @@ def fit_body_prior(
             sl = slice(k + 3 * a, k + 3 * a + 3)
             H[sl, sl] += Rp @ M @ Rp.T
             g[sl] -= Rp @ (M @ r)
+        if len(G_limb):  # elbows where the shape puts them along the arm, not slid
+            H[:k, :k] += limb_prior * G_limb.T @ G_limb
+            g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
         H += damping * np.diag(np.diag(H))
         delta = np.linalg.solve(H, g)
         c = c + delta[:k]
+        dR = Rotation.from_rotvec(delta[k:].reshape(B, 3)).as_matrix()
         for a in range(B):
-            dw = delta[k + 3 * a : k + 3 * a + 3]
-            j = art.bones[a]
-            p = art.rig.parents[j]
+            p = art.rig.parents[art.bones[a]]
             Rp = aux["R"][p] if p >= 0 else np.eye(3)
-            local[a] = Rp.T @ Rotation.from_rotvec(dw).as_matrix() @ Rp @ local[a]
+            local[a] = Rp.T @ dR[a] @ Rp @ local[a]
         # similarity from markers and data pairs on the updated body
-        rest = V0 + U @ c
+        rest = shaped(c)
         Xp, aux = art.pose(rest, local)
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
         # without markers, closest-point pairs bias the scale down: hold it (shape modes carry size)
         sim = umeyama(src, dst, np.r_[mw, w], scale=None if len(marker_vid) >= 3 else sim.s)
-    rest = V0 + U @ c
+    rest = shaped(c)
     X = sim.apply(Xp)
     res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
     final_w = marker_weights(res_m, iterations, iterations, marker_scale_start, marker_scale, floor)

@@ -48,7 +48,14 @@ from functools import cache
 import numpy as np
 import scipy.sparse as sp
 
-from core.rig import Rig, axis_angle, bone_transforms, joint_positions, load_rig, pose_body
+from core.rig import (
+    axis_angle,
+    bone_transforms,
+    finger_rotations,
+    joint_positions,
+    load_rig,
+    pose_body,
+)
 from core.shapespace.ansur import split
 from core.synth.bodies import SEXES, shape_body
 from core.template import load_template
@@ -322,35 +329,6 @@ def rest_arm_abduction(V: np.ndarray) -> float:
     return float(np.degrees(np.arctan2(d[0], -d[1])))
 
 
-def _finger_rotations(
-    J: np.ndarray, tails: np.ndarray, rig: Rig, side: str, fist: bool, amount: float
-) -> dict[str, np.ndarray]:
-    """Local rotations curling (fist) or spreading the fingers of one hand."""
-    sgn = 1.0 if side == ".L" else -1.0
-    palm = np.array([-sgn, -1.0, 0.0]) / np.sqrt(2.0)  # rest A-pose palms face down and in
-    across = J[rig.index("finger5-1" + side)] - J[rig.index("finger2-1" + side)]
-    across /= np.linalg.norm(across)
-    rot: dict[str, np.ndarray] = {}
-    for f in range(1, 6):
-        for k in range(1, 4):
-            name = f"finger{f}-{k}{side}"
-            j = rig.index(name)
-            d = tails[j] - J[j]
-            if fist:
-                ax = np.cross(d, palm) if f == 1 else across
-                ang = np.radians(30.0 if f == 1 else amount)
-                R = axis_angle(ax, ang)
-                if (R @ d - d) @ palm < 0:  # curl towards the palm
-                    R = R.T
-            else:
-                if k > 1 or f == 1:
-                    continue
-                ang = np.radians(amount) * (f - 3.0) / 2.0  # spread about the palm normal
-                R = axis_angle(palm, sgn * ang)
-            rot[name] = R
-    return rot
-
-
 def posture(
     V: np.ndarray,
     rng: np.random.Generator,
@@ -405,7 +383,7 @@ def posture(
             rot["lowerarm01" + side] = axis_angle(np.cross(u, d), np.radians(flex - rest_flex))
             rot["upperleg01" + side] = axis_angle(_Z, s * np.radians(spread))
             rot["foot" + side] = axis_angle(_Z, -s * np.radians(spread))  # sole back on the floor
-            rot.update(_finger_rotations(J, tails, rig, side, fist, curl))
+            rot.update(finger_rotations(J, tails, side, fist, curl, rig=rig))
         rot["spine03"] = axis_angle(_X, np.radians(ang["lean_fwd"])) @ axis_angle(
             _Z, np.radians(ang["lean_side"])
         )

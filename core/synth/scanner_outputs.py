@@ -24,9 +24,11 @@ Decisions
   opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
   back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``.
 - **Raw scans** come from :func:`core.synth.scanner.simulate_scan` of the off-model body
-  (6 views, 4 mm pitch, 1 mm noise). ``inward``: the faces (and normals) of both arms are wound
-  inward. ``clutter``: 2–5 stray blobs (spheres r 2–6 cm, 0.3–1.2 m from the body) and a ring of
-  floor points/triangles around the feet (r 0.25–0.6 m).
+  (6 views, 4 mm pitch, 1 mm noise); ``make_case(..., hair=style)`` scans it with a hair solid's
+  surface (:func:`hair_mesh`, 4 mm marching cubes) on the head, the scalp under it hidden.
+  ``inward``: the faces (and normals) of both arms are wound inward. ``clutter``: 2–5 stray
+  blobs (spheres r 2–6 cm, 0.3–1.2 m from the body) and a ring of floor points/triangles around
+  the feet (r 0.25–0.6 m).
 - **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
   uniformly by area on the true body surface with 0.5 mm noise and the soles removed
   (``dense``).
@@ -390,10 +392,45 @@ def clutter(body: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.
     return np.vstack(Vs), np.vstack(Fs), {"blobs": nb, "floor_ring_m": (r0, r1)}
 
 
-def raw_scan(V: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A raw multi-view scan (6 views, 4 mm pitch, 1 mm noise) in metres: points, faces, normals."""
+def hair_mesh(
+    V: np.ndarray, style: str, rng: np.random.Generator, voxel_m: float = 0.004
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The surface of a hair solid (:func:`hair_volume`) for a body ``V`` (13380, 3), metres:
+    outward-wound triangles by marching cubes on a ``voxel_m`` grid (its inner side lies inside
+    the head, where a scanner does not see it). Returns (vertices, triangles, parameters)."""
+    from skimage.measure import marching_cubes  # dev dependency (BSD-3)
+
+    inside, params = hair_volume(V, style, rng)
+    head = V[load_template().part_mask("head")]
+    lo = head.min(axis=0) - 0.1
+    hi = head.max(axis=0) + np.array([0.1, 0.08, 0.1])
+    axes = [np.arange(lo[k], hi[k] + voxel_m, voxel_m) for k in range(3)]
+    C = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+    occ = inside(C.reshape(-1, 3)).reshape(C.shape[:3]).astype(np.float64)
+    f = ndimage.gaussian_filter(np.pad(occ, 1), 0.7)
+    Vh, Fh, _, _ = marching_cubes(f, level=0.5, spacing=(voxel_m,) * 3)
+    Vh = Vh + lo - voxel_m
+    Fh = Fh.astype(np.int64)
+    if mesh_volume(Vh, Fh) < 0:
+        Fh = Fh[:, [0, 2, 1]]
+    return Vh, Fh, params
+
+
+def raw_scan(
+    V: np.ndarray,
+    rng: np.random.Generator,
+    hair: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A raw multi-view scan (6 views, 4 mm pitch, 1 mm noise) in metres: points, faces, normals.
+
+    ``hair``: a hair surface (vertices, triangles; :func:`hair_mesh`) scanned with the body: the
+    scanner sees the hair and not the scalp under it.
+    """
     tpl = load_template()
-    sim = simulate_scan(V, tpl.F, rng, config=ScanConfig(n_views=6, pitch_m=0.004, noise_m=0.001))
+    F = np.asarray(tpl.F, dtype=np.int64)
+    if hair is not None:
+        V, F = np.vstack([V, hair[0]]), np.vstack([F, hair[1] + len(V)])
+    sim = simulate_scan(V, F, rng, config=ScanConfig(n_views=6, pitch_m=0.004, noise_m=0.001))
     return sim.V_scan, sim.F_scan, sim.normals
 
 
@@ -561,18 +598,24 @@ def _tf(A: np.ndarray, X: np.ndarray) -> np.ndarray:
     return X @ A[:3, :3].T + A[:3, 3]
 
 
-def make_case(seed: int, kind: str | None = None) -> RealWorldCase:
-    """Build a real-world-like case (deterministic in ``seed`` and ``kind``).
+def make_case(seed: int, kind: str | None = None, *, hair: str | None = None) -> RealWorldCase:
+    """Build a real-world-like case (deterministic in ``seed``, ``kind`` and ``hair``).
 
     The body and its posture depend on ``seed`` only (``closed_touching`` lowers the arms until
     they touch), so ``make_case(s, "closed_lowres")`` and ``make_case(s, "raw")`` show the same
-    body. ``kind`` None draws one of :data:`KINDS` from the seed.
+    body. ``kind`` None draws one of :data:`KINDS` from the seed. ``hair`` (one of
+    :data:`HAIR_STYLES`, raw kinds only: raw, raw_inward, raw_clutter, cloud) scans the body
+    with that hair on its head (default None: the cases as they always were).
     """
     kinds = sorted(KINDS)
     if kind is None:
         kind = kinds[int(np.random.default_rng([seed, 100]).integers(len(kinds)))]
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+    if hair is not None and (kind.startswith("closed") or kind == "dense"):
+        raise ValueError(f"hair= is for the raw kinds; {kind} has its own (closed_hair) or none")
+    if hair is not None and hair not in HAIR_STYLES:
+        raise ValueError(f"hair must be one of {HAIR_STYLES}, got {hair!r}")
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
     body = off_model_body(np.random.default_rng([seed, 101]))
@@ -601,7 +644,11 @@ def make_case(seed: int, kind: str | None = None) -> RealWorldCase:
         F = None
         out["points"] = len(X)
     else:
-        X, F, normals = raw_scan(P, rng)
+        surface = None
+        if hair is not None:
+            Vh, Fh, out["hair"] = hair_mesh(P, hair, np.random.default_rng([seed, 104]))
+            surface = (Vh, Fh)
+        X, F, normals = raw_scan(P, rng, hair=surface)
         if kind == "raw_inward":
             F, normals, flip = wind_arms_inward(X, F, normals, P)
             out["flipped_faces"] = int(flip.sum())
@@ -680,6 +727,7 @@ __all__ = [
     "closed_mesh",
     "clutter",
     "file_transform",
+    "hair_mesh",
     "hair_volume",
     "make_case",
     "other_convention_markers",

@@ -80,3 +80,34 @@ def test_removal_check_counts_the_plate_and_spares_the_body():
     }  # fmt: skip
     text = "\n".join(report([row], [], True))
     assert f"removed as not the body (reports): floor points {len(disc):,}" in text
+
+
+def test_truth_floor_and_twin_split():
+    """The truth's own fit->scan (the floor) is ~0 on a scan that is the truth, and grows where
+    the scan lacks it (a cloud of half the vertices: point-to-point has a sampling floor); a
+    twin slid along its surface is far vertex by vertex but not surface to surface."""
+    from bench.realworld import twins
+
+    tpl = load_template()
+    F = np.asarray(tpl.F, np.int64)
+    V = np.asarray(tpl.V, float)
+    N = tpl.vertex_normals()
+    ones, no = np.ones(len(V)), np.zeros(len(V), bool)
+    m = surface_metrics(Scan(V=V, F=F, normals=N, confidence=ones, boundary=no), V, F, truth=V)
+    assert m["truth_fit_to_scan_mean_mm"] < 0.01
+    assert m["part_truth_fit_to_scan_mean_mm"]["torso"] < 0.01
+    half = slice(0, None, 2)
+    cloud = Scan(V=V[half], F=None, normals=N[half], confidence=ones[half], boundary=no[half])
+    m = surface_metrics(cloud, V, F, truth=V)
+    assert m["truth_fit_to_scan_mean_mm"] > 1.0  # no faces: the distance to the nearest point
+    assert abs(m["truth_fit_to_scan_mean_mm"] - m["fit_to_scan_mean_mm"]) < 0.05
+    # twin B: every vertex slid 5 mm along the surface (horizontally, around the body)
+    t_ = np.cross(N, [0.0, 1.0, 0.0])
+    n_ = np.linalg.norm(t_, axis=1, keepdims=True)
+    B = V + 0.005 * np.where(n_ > 0.5, t_ / np.maximum(n_, 1e-9), 0.0)
+    rows = [{"seed": 0, "kind": "closed_lowres", "_fit_body": V},
+            {"seed": 0, "kind": "raw", "_fit_body": B}]  # fmt: skip
+    (t,) = twins(rows)
+    assert 3.0 < t["mean_mm"] <= 5.0 + 1e-9
+    assert t["tangential_mm"] > 5 * t["normal_mm"]
+    assert t["surface_mm"] < 0.25 * t["mean_mm"]

@@ -98,3 +98,19 @@ def test_apply_frame_maps_normals_and_keeps_faces():
     np.testing.assert_allclose(out.V, TPL.V, atol=1e-9)
     np.testing.assert_allclose(out.normals, np.tile([0, 1, 0], (len(V), 1)), atol=1e-12)
     np.testing.assert_array_equal(out.F, TPL.F)
+
+
+@pytest.mark.parametrize("up", UPS)
+def test_turn_over_flips_the_up_axis_and_keeps_the_file_map(up):
+    from core.io import prepare_scan, turn_over
+
+    V_file = to_file(TPL.V, up, 0.001)
+    wrong = ("-" if up[0] == "+" else "+") + up[1]  # the body read head-down
+    scan = prepare_scan(RawMesh(V=V_file, F=TPL.F), detect_frame(V_file, units="mm", up=wrong))
+    n0 = scan.normals.copy()
+    M = turn_over(scan)
+    assert scan.frame.up == up
+    np.testing.assert_allclose(scan.frame.R, rotation_for_up(up))
+    np.testing.assert_allclose(scan.V, scan.frame.to_canonical(V_file), atol=1e-12)
+    np.testing.assert_allclose(scan.normals, n0 @ M.T)
+    assert scan.V[TPL.landmarks["Vertex"], 1] > scan.V[:, 1].min() + 1.5  # head up now

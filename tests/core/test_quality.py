@@ -61,6 +61,9 @@ def test_good_fit_and_truth_read_good(case, fitted):
     for name, p in q.parts.items():
         assert p.scan_points >= 30, name
         assert p.scan_to_fit_p95_m < THRESHOLDS["scan_to_fit_p95_m"].suspect, name
+    for r in (q, t):  # the head faces forward: well inside the limit, only the head has it
+        assert r.parts["head"].head_turn_deg < THRESHOLDS["head_turn_deg"].suspect - 15
+        assert all(np.isnan(p.head_turn_deg) for k, p in r.parts.items() if k != "head")
     # the report carries it, strict-JSON ready
     rep = json.loads(json.dumps(json_ready(fitted.report.to_dict()), allow_nan=False))
     assert rep["quality"]["quality"] == "good"
@@ -88,6 +91,67 @@ def test_head_collapsed_into_the_neck_fails(case, fitted, scale):
     assert q.parts["head"].quality == "failed"
     assert q.parts["head"].coverage < THRESHOLDS["coverage"].failed
     assert q.parts["torso"].quality == "good"
+
+
+def _neck_base(X: np.ndarray) -> np.ndarray:
+    """Centre of the neck/torso boundary of body X (the pivot of a head turned on its neck)."""
+    tpl = load_template()
+    neck, torso = tpl.part_mask("neck"), tpl.part_mask("torso")
+    E = tpl.edges
+    b = (torso[E[:, 0]] & neck[E[:, 1]]) | (neck[E[:, 0]] & torso[E[:, 1]])
+    return X[np.unique(E[b])].mean(axis=0)
+
+
+@pytest.mark.parametrize(
+    ("pivot", "axis", "deg"),
+    [("ears", "y", 45.0), ("ears", "y", 60.0), ("ears", "x", 45.0), ("neck", "x", 60.0)],
+)
+def test_head_turned_on_its_data_fails_naming_the_head(case, fitted, pivot, axis, deg):
+    # a head fitted turned or flexed on the right surface (raw-19 of core.synth.scanner_outputs:
+    # 58° off the truth's, 72 mm off, scan→fit p95 5 mm, `good` before head_turn_deg). Turned
+    # about the ears the skull stays on its data: without head_turn_deg the copies turned 45-60°
+    # about the vertical read only suspect (scan→fit p95 19-24 mm, coverage 0.81-0.85)
+    X = fitted.vertices.copy()
+    lm = load_template().landmarks
+    if pivot == "ears":
+        head = load_template().part_mask("head")
+        c = 0.5 * (X[lm["Tragion_L"]] + X[lm["Tragion_R"]])
+    else:
+        head = _mask("head")  # head and neck, about the neck's base
+        c = _neck_base(X)
+    R = Rotation.from_euler(axis, deg, degrees=True).as_matrix()
+    X[head] = (X[head] - c) @ R.T + c
+    q = assess_fit(case.scan, X)
+    assert q.quality == "failed" and q.parts["head"].quality == "failed", q.reasons
+    assert q.parts["head"].head_turn_deg > THRESHOLDS["head_turn_deg"].failed
+    assert any(r.startswith("head: turned") for r in q.reasons), q.reasons
+    assert q.parts["torso"].quality == "good"
+
+
+def test_head_turn_is_reported_not_judged_for_marker_fits(case, fitted):
+    # a marker fit's tragion/sellion vertices follow the user's markers (other conventions move
+    # them by centimetres: correct heads read 36-174° on bench.realworld --markers), so a marker
+    # fit reports head_turn_deg without judging it; the markerless fit judges it
+    X = fitted.vertices.copy()
+    lm = load_template().landmarks
+    head = load_template().part_mask("head")
+    c = 0.5 * (X[lm["Tragion_L"]] + X[lm["Tragion_R"]])
+    R = Rotation.from_euler("x", 45.0, degrees=True).as_matrix()
+    X[head] = (X[head] - c) @ R.T + c
+    q = assess_fit(case.scan, X, head_turn_check=False)
+    assert q.parts["head"].head_turn_deg > THRESHOLDS["head_turn_deg"].failed
+    assert not any(r.startswith("head: turned") for r in q.reasons), q.reasons
+
+
+def test_only_the_markerless_fit_judges_the_head_turn():
+    import inspect
+
+    from core.matching import markerless
+    from core.registration.fit import fit, iter_fit
+
+    for f in (fit, iter_fit):
+        assert inspect.signature(f).parameters["head_turn_check"].default is False
+    assert inspect.getsource(markerless.fit_markerless).count("head_turn_check=True") == 2
 
 
 @pytest.mark.parametrize("deg", [10.0, 25.0])

@@ -134,6 +134,31 @@ def test_hair_adds_volume_on_the_head():
     assert (far & elsewhere).sum() < 0.002 * elsewhere.sum()
 
 
+def test_raw_scan_with_hair_sees_the_hair_not_the_scalp():
+    c = make_case(20, "raw", hair="bun")
+    X, truth = _canonical(c)
+    tpl = load_template()
+    d = MeshDistance(truth, tpl.F).distances(X)
+    part = np.asarray(tpl.part_names)[tpl.part[cKDTree(truth).query(X)[1]]]
+    far = d > 0.02
+    assert c.params["output"]["hair"]["style"] == "bun" and "hair bun" in c.description
+    assert (far & (part == "head")).sum() > 200
+    elsewhere = ~np.isin(part, ["head", "neck", "torso", "hand_L", "hand_R"])
+    assert (far & elsewhere).sum() < 0.002 * elsewhere.sum()
+    # the scalp under the bun is hidden: no scan point within 5 mm of the bun's centre region
+    centre = np.asarray(c.params["output"]["hair"]["bun"]["centre"])
+    r = c.params["output"]["hair"]["bun"]["radius"]
+    P = (
+        c.V @ np.linalg.inv(c.to_file[:3, :3]).T
+        - c.to_file[:3, 3] @ np.linalg.inv(c.to_file[:3, :3]).T
+    )
+    assert np.linalg.norm(P - centre, axis=1).min() > 0.8 * r
+    # without hair= the case is the one it always was (bench result files: 147,048 vertices)
+    assert len(make_case(20, "raw").V) == 147_048
+    with pytest.raises(ValueError, match="raw kinds"):
+        make_case(20, "closed_lowres", hair="bun")
+
+
 def test_raw_inward_arms_are_wound_inward():
     c = make_case(5, "raw_inward")
     X, truth = _canonical(c)

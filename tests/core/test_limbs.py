@@ -1,0 +1,108 @@
+"""Limbs of markerless fits on off-model scans (``core.synth.scanner_outputs``): the body prior
+keeps the elbows where the arm's shape puts them, and an open hand fitted to a fist is not called
+good."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("skimage")
+
+
+def _case(tmp_path, seed: int, kind: str):
+    """(case, scan loaded as the CLI does, truth in the scan's canonical frame)."""
+    from core.io import load_scan
+    from core.synth.scanner_outputs import make_case
+
+    case = make_case(seed, kind)
+    scan, _ = load_scan(case.write(tmp_path / f"{kind}-{seed}.ply"))
+    return case, scan, scan.frame.to_canonical(case.truth)
+
+
+def _offsets_mm(X: np.ndarray, truth: np.ndarray, parts: tuple[str, ...]) -> dict[str, float]:
+    from core.registration.quality import part_labels
+
+    labels, names = part_labels()
+    out = {}
+    for p in parts:
+        m = labels == names.index(p)
+        out[p] = float(np.linalg.norm(X[m].mean(0) - truth[m].mean(0)) * 1000)
+    return out
+
+
+def test_limb_prior_keeps_the_elbows_of_a_heavy_body(tmp_path):
+    """closed_lowres-16 (BMI 36, arms 47°): from the search's start, the markerless body prior
+    without the limb-proportion prior slides the elbows down the arms (rest upper arm 347/427 mm,
+    forearm 187/114; truth 251/242) and leaves the right arm's centroid 68 mm off the truth's;
+    with it (the markerless fit's) upper arm and forearm keep their proportion and the arms
+    their place."""
+    from core.matching.markerless import K_SCHEDULE, choose_alignment
+    from core.registration.correspondence import ScanIndex
+    from core.registration.fit import template_operators
+    from core.registration.shape_prior import LIMB_PRIOR, fit_body_prior
+    from core.rig import joint_positions, load_rig
+    from core.template import load_template
+    from core.threads import single_blas_thread
+
+    _, scan, truth = _case(tmp_path, 16, "closed_lowres")
+    index = ScanIndex(scan)
+    start, _ = single_blas_thread(choose_alignment)(scan, index)
+    tpl, rig = load_template(), load_rig()
+    none = np.zeros(0, np.int64)
+
+    def prior(**kw):  # the markerless fit's first body prior (core.matching.markerless)
+        return fit_body_prior(
+            index, tpl.V, np.asarray(tpl.F, np.int64), none, np.zeros((0, 3)), start.similarity,
+            data_mask=template_operators().full.data_mask, k_schedule=K_SCHEDULE, iterations=16,
+            bidirectional=True, freeze_pose=3, initial_pose=start.pose,
+            initial_coefficients=start.coefficients, **kw,
+        )  # fmt: skip
+
+    def ratios(rest: np.ndarray) -> list[float]:
+        J = joint_positions(rest, rig=rig)
+        out = []
+        for s in "LR":
+            sh, el, wr = (J[rig.index(f"{b}.{s}")] for b in ("upperarm01", "lowerarm01", "wrist"))
+            out.append(float(np.linalg.norm(wr - el) / np.linalg.norm(el - sh)))
+        return out
+
+    free, kept = prior(limb_prior=0.0), prior(limb_prior=LIMB_PRIOR)
+    assert min(ratios(free.rest)) < 0.6, ratios(free.rest)  # the failure this prior prevents
+    assert all(0.85 < r < 1.15 for r in ratios(kept.rest)), ratios(kept.rest)  # truth 0.96
+    off = _offsets_mm(kept.X, truth, ("arm_L", "arm_R"))
+    assert max(off.values()) < 25.0, off  # measured 8 / 11 (39 / 68 without)
+
+
+def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(tmp_path):
+    """closed_lowres-24 (fists on a closed mesh): the true body's fingertips lie on the scan; the
+    same body and posture with open hands (what the template's hand becomes when fitted to a fist:
+    fingers straight out of the scan) has both hands flagged by their fingertips' gap to it. (The
+    true fists read a hand/forearm proportion of 1.60 and fail on that older figure.)"""
+    from core.matching.markerless import fisted_hands
+    from core.registration.correspondence import ScanIndex
+    from core.registration.quality import assess_fit
+    from core.synth.realworld import off_model_body, posture
+
+    case, scan, truth = _case(tmp_path, 24, "closed_lowres")
+    assert case.params["posture"]["fist"]
+    body = off_model_body(np.random.default_rng([24, 101]))
+    fist, _ = posture(body.V, np.random.default_rng([24, 102]))
+    assert np.allclose(fist @ case.to_file[:3, :3].T + case.to_file[:3, 3], case.truth)
+    open_, _ = posture(body.V, np.random.default_rng([24, 102]), fist=False)
+    open_ = scan.frame.to_canonical(open_ @ case.to_file[:3, :3].T + case.to_file[:3, 3])
+    q_truth = assess_fit(scan, truth)
+    q_open = assess_fit(scan, open_)
+    for side in ("hand_L", "hand_R"):
+        assert q_truth.parts[side].hand_tip_gap_m < 0.015, q_truth.parts[side]
+        assert not any(r.startswith(f"{side}: its fingertips") for r in q_truth.reasons)
+        assert q_open.parts[side].hand_tip_gap_m > 0.030, q_open.parts[side]
+        assert q_open.parts[side].quality != "good"
+        assert any(r.startswith(f"{side}: its fingertips") for r in q_open.reasons)
+    off = _offsets_mm(open_, truth, ("hand_L", "hand_R"))
+    assert min(off.values()) > 30.0, off  # the open hands' centroids are this far off the fists'
+    # a fisted fit's fingertips lie on the scan: the markerless rounds would not curl them again
+    # (the subject's own open hands read 50 mm here, below FIST_TIP_GAP_M; the template's open
+    # hand fitted to these fists reads 67-69 mm: the rounds fit it as a fist)
+    index = ScanIndex(scan)
+    assert fisted_hands(index, truth) == ""
