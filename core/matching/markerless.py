@@ -39,6 +39,16 @@ from core.threads import single_blas_thread
 
 K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
 
+#: How far (metres) the body's soles may reach below the scan's lowest points: scanner software
+#: cuts the floor contact band off a raw scan (``core.synth.scanner``: the lowest 1 cm), so the
+#: soles may lie that far below the data; a closed mesh's flat-cut soles sit 3-8 mm above the
+#: floor. Without a floor the shape-space fits of raw scans grew the feet down and forward along
+#: the instep (heels 12-32 mm under the floor, feet 9-33 mm too long; ``bench.realworld``
+#: raw-0..28), while the closed mesh of the same body kept them on its soles. The floor holds the
+#: first shape-space fit only: the soft-marker rounds keep its feet by their landmarks (with the
+#: floor in the rounds too, closed_lowres-28's last round ended 21.0 mm from the truth, not 17.8).
+FLOOR_GAP_M = 0.01
+
 
 def _rot_y(deg: float) -> np.ndarray:
     a = np.radians(deg)
@@ -401,6 +411,7 @@ def fit_markerless(
     rounds = soft_marker_rounds if refine else 0
     sched = (schedule or Schedule.refine()) if refine else Schedule(())
     user_prior = options.pop("prior_options", {}) or {}
+    floor_y = scan_floor(scan)
 
     def first_fit(start: Start) -> FitResult:
         prior_options: dict[str, Any] = {
@@ -412,6 +423,7 @@ def fit_markerless(
             "initial_coefficients": start.coefficients,
             "limb_prior": LIMB_PRIOR,
             "bone_prior": MARKERLESS_BONE_PRIOR,
+            "floor_y": floor_y,
         }
         prior_options.update(user_prior)
         return fit(
@@ -447,8 +459,15 @@ def fit_markerless(
     for r in range(rounds):
         last = r == rounds - 1
         assert hair is not None
+        marks = predicted_landmarks(res.vertices)
+        if r == 0:
+            # a fist's fingertip is not where the first fit's open hand put it (7-9 cm off):
+            # held there, it dragged the fisted arms (raw-24 and closed_lowres-24: 46-47 mm from
+            # the truth after round 1, 20-22 mm before; their twins 15.6 -> 12.2 mm without it)
+            for x in fists:
+                marks.pop(f"Dactylion_{x}")
         res = fit(
-            hair.scan, predicted_landmarks(res.vertices), schedule=sched if last else Schedule(()),
+            hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
             retries=MARKERLESS_RETRIES, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
@@ -506,6 +525,12 @@ def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
     33-44 mm off the truth there, read 34-44).
     """
     return "".join(x for x in "LR" if hand_tip_gap(index, X, x) > FIST_TIP_GAP_M)
+
+
+def scan_floor(scan: Scan) -> float:
+    """Height (metres, +Y up) the fitted body may not go below: the scan's lowest points (0.05th
+    percentile of the heights) less :data:`FLOOR_GAP_M`."""
+    return float(np.percentile(np.asarray(scan.V)[:, 1], 0.05)) - FLOOR_GAP_M
 
 
 def predicted_landmarks(V: np.ndarray) -> dict[str, np.ndarray]:

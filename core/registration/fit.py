@@ -653,7 +653,7 @@ def final_report(
         report.seconds = time.perf_counter() - t_start
         return FitResult(
             vertices=X, faces=F_full, affines=frame.affines_to_world(A),
-            data_weight=weights_full, report=report,
+            data_weight=weights_full, report=report, body_prior=body.prior,
         )  # fmt: skip
     # scan→fit distance on a fixed subsample of scan points, shared with the per-part check
     sample = np.linspace(0, len(scan.V) - 1, min(len(scan.V), SAMPLE_POINTS)).astype(np.int64)

@@ -220,6 +220,7 @@ class PriorOptions:
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
     limb_prior: float = 0.0
     fists: str = ""
+    floor_y: float | None = None
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -307,6 +308,22 @@ def _scan_to_template(
     p = sel[has]
     w = index.point_weight[p] * ~index.boundary[p]
     return v, pts[p], w, index.normals[p]
+
+
+#: Weight of a floor row (:func:`floor_pairs`) relative to one point-to-plane data row.
+FLOOR_WEIGHT = 10.0
+
+
+def floor_pairs(
+    X: np.ndarray, cand: np.ndarray, floor_y: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (vertex, target, normal) holding the body ``X`` (n, 3, metres, +Y up) above the
+    plane y = ``floor_y``: each vertex of ``cand`` below it, with its projection onto the plane
+    and the plane's normal +Y (point-to-plane rows: free to slide along the floor)."""
+    v = cand[X[cand, 1] < floor_y]
+    P = X[v].copy()
+    P[:, 1] = floor_y
+    return v, P, np.tile([0.0, 1.0, 0.0], (len(v), 1))
 
 
 class _Articulation:
@@ -456,6 +473,7 @@ def fit_body_prior(
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
     limb_prior: float = 0.0,
     fists: str = "",
+    floor_y: float | None = None,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -508,6 +526,11 @@ def fit_body_prior(
         centroids 51-84 mm off the truth's.
     fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
         (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
+    floor_y : height (metres, scan frame, +Y up) below which no body vertex may go: vertices
+        under it are paired with their projection onto that plane (point-to-plane rows of
+        weight :data:`FLOOR_WEIGHT`, :func:`floor_pairs`). None (default): no floor. Scans
+        without soles (a raw scan's floor contact band cut) left the feet free to grow
+        downwards along the instep.
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -580,6 +603,12 @@ def fit_body_prior(
                 Np = np.vstack([Np, s_N @ sim.R])
             if vertex_weight is not None:
                 w = w * vertex_weight[rows]
+            if floor_y is not None:  # the body stands on the floor, not in it
+                f_rows, f_P, f_N = floor_pairs(X, np.flatnonzero(sub), floor_y)
+                rows = np.r_[rows, f_rows]
+                P = np.vstack([P, f_P])
+                w = np.r_[w, np.full(len(f_rows), FLOOR_WEIGHT)]
+                Np = np.vstack([Np, f_N @ sim.R])
         else:
             Np = np.zeros((0, 3))
         Q = ((P - sim.t) @ sim.R) / sim.s

@@ -163,3 +163,34 @@ def test_markerless_fit_keeps_the_head_facing_forward(tmp_path):
     assert off < 30.0, off  # measured 13 mm (72 mm without the prior)
     assert head_turn(res.vertices) < THRESHOLDS["head_turn_deg"].suspect
     assert res.report.quality.parts["head"].quality != "failed", res.report.quality.reasons
+
+
+def test_twin_deliveries_put_the_feet_alike(tmp_path):
+    """closed_lowres-28 and raw-28 are the same body: a closed mesh with flat-cut soles and a
+    raw scan without its lowest 1 cm. Without a floor the raw scan's shape-space fit grew its
+    feet down and forward along the instep (heels 41 mm under the truth's soles, feet 40.6 mm
+    from the truth's, 20.9 mm from the closed twin's); with the floor
+    (:data:`core.matching.markerless.FLOOR_GAP_M`) 20.6 and 5.2 mm."""
+    from core.io import load_scan
+    from core.matching.markerless import fit_markerless
+    from core.synth.scanner_outputs import make_case
+    from core.template import load_template
+
+    tpl = load_template()
+    feet = tpl.part_mask("foot_L") | tpl.part_mask("foot_R")
+    body, truth = {}, {}
+    for kind in ("closed_lowres", "raw"):
+        case = make_case(28, kind)
+        scan, _ = load_scan(case.write(tmp_path / f"{kind}-28.ply"))
+        res = fit_markerless(scan, refine=False)
+        A = case.to_file  # the generator's body frame (metres), shared by the twins
+
+        def in_body(X: np.ndarray, A: np.ndarray = A, scan=scan) -> np.ndarray:
+            return (scan.frame.to_file(X) - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+
+        body[kind] = in_body(res.vertices)
+        truth[kind] = in_body(scan.frame.to_canonical(case.truth))
+    raw_off = np.linalg.norm(body["raw"][feet] - truth["raw"][feet], axis=1).mean() * 1000
+    twins = np.linalg.norm(body["raw"][feet] - body["closed_lowres"][feet], axis=1).mean() * 1000
+    assert raw_off < 30.0, raw_off
+    assert twins < 12.0, twins
