@@ -577,6 +577,7 @@ def fit_body_prior(
     rms_d = float("nan")
     Xp, aux = art.pose(shaped(c), local)
     bone_M = _bone_metrics(art, V0, bone_prior)
+    bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
     for it in range(iterations):
         X = sim.apply(Xp)
@@ -617,29 +618,42 @@ def fit_body_prior(
         Rb = art.blended_rotations(aux, uniq)
         Jc_u = np.einsum("rab,rbk->rak", Rb, U[uniq])  # (u, 3, k)
         Jw_u = art.pose_jacobian(aux, uniq)  # (u, 3, 3B)
-        Jall = np.concatenate([Jc_u, Jw_u], axis=2)[inv]
+        J_u = np.concatenate([Jc_u, Jw_u], axis=2)  # (u, 3, k + 3B), each row's is J_u[inv]
+        nu, K = len(uniq), k + 3 * B
         nd = len(rows)
+        inv_d, inv_m = inv[:nd], inv[nd:]
         sw = np.sqrt(w)
-        A_d = np.einsum("rc,rck->rk", Np, Jall[:nd]) * sw[:, None]
+        # data rows n_r·J_u(r) as one sparse (nd, 3u) × (3u, K) product: no (nd, 3, K) copy
+        cols_d = (3 * inv_d[:, None] + np.arange(3)).ravel()
+        S_d = sp.csr_matrix(
+            ((Np * sw[:, None]).ravel(), cols_d, np.arange(0, 3 * nd + 1, 3)), shape=(nd, 3 * nu)
+        )
+        A_d = S_d @ J_u.reshape(3 * nu, K)
         b_d = np.einsum("rc,rc->r", Np, Q - Xp[rows]) * sw
+        H = A_d.T @ A_d
+        g = A_d.T @ b_d
         if point_weight > 0 and nd:  # point-to-point rows: no sliding along the surface
-            pw = sw * np.sqrt(point_weight)
-            A_p = (Jall[:nd] * pw[:, None, None]).reshape(-1, k + 3 * B)
-            b_p = ((Q - Xp[rows]) * pw[:, None]).ravel()
-        else:
-            A_p, b_p = np.zeros((0, k + 3 * B)), np.zeros(0)
+            # Σ_r pw_r² J_r^T J_r summed per vertex first (rows sharing a vertex share J)
+            pw2 = w * point_weight
+            W_u = np.bincount(inv_d, pw2, minlength=nu)
+            r_u = np.stack(
+                [np.bincount(inv_d, pw2 * (Q - Xp[rows])[:, c], minlength=nu) for c in range(3)], 1
+            )
+            Js = (J_u * np.sqrt(W_u)[:, None, None]).reshape(3 * nu, K)
+            H += Js.T @ Js
+            g += np.einsum("uck,uc->k", J_u, r_u)
         # robust marker weights, annealed: a misplaced or misnamed marker loses its pull
         res_m = np.linalg.norm(Qm - Xp[marker_vid], axis=1) * sim.s
         mw = marker_weight * marker_weights(
             res_m, it, iterations, marker_scale_start, marker_scale, floor
         )
-        A_m = Jall[nd:] * np.sqrt(mw)[:, None, None]
-        A_m = A_m.reshape(-1, k + 3 * B)
+        A_m = J_u[inv_m] * np.sqrt(mw)[:, None, None]
+        A_m = A_m.reshape(-1, K)
         b_m = ((Qm - Xp[marker_vid]) * np.sqrt(mw)[:, None]).ravel()
         rms_d = float(np.sqrt(np.mean(b_d**2 / np.maximum(w, 1e-9)))) if nd else float("nan")
         # normal equations with priors (data rows are in metres: scale priors to mm² units)
-        H = A_d.T @ A_d + A_m.T @ A_m + A_p.T @ A_p
-        g = A_d.T @ b_d + A_m.T @ b_m + A_p.T @ b_p
+        H += A_m.T @ A_m
+        g += A_m.T @ b_m
         pose_w = pose_prior_weight if it >= freeze_pose else 1e6
         prior = np.r_[shape_prior_weight * 1e-6 / sigma**2, np.full(3 * B, pose_w)]
         if k_schedule:
@@ -648,10 +662,12 @@ def fit_body_prior(
         wvec = np.r_[c, np.zeros(3 * B)]
         H += np.diag(prior)
         g -= prior * wvec
-        for a, M in bone_M:  # total rotation of the distal arm bones off the rest pose
+        # the bones' rotation vectors, all at once
+        rv = Rotation.from_matrix(local[bone_slots]).as_rotvec() if bone_M else np.zeros((0, 3))
+        for i, (a, M) in enumerate(bone_M):  # total rotation of the distal arm bones off rest
             j = art.bones[a]
             Rp = aux["R"][art.rig.parents[j]]
-            r = Rotation.from_matrix(local[a]).as_rotvec()
+            r = rv[i]
             sl = slice(k + 3 * a, k + 3 * a + 3)
             H[sl, sl] += Rp @ M @ Rp.T
             g[sl] -= Rp @ (M @ r)
