@@ -210,10 +210,14 @@ def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray
     n, k = nbr.shape
     rows = np.repeat(np.arange(n), k - 1)
     cols = nbr[:, 1:].ravel()
-    dots = np.einsum("ij,ij->i", N[rows], N[cols])
-    D = normalize(V[cols] - V[rows], fallback=(0.0, 0.0, 0.0))
-    across = np.abs(np.einsum("ij,ij->i", N[rows], D)) + np.abs(np.einsum("ij,ij->i", N[cols], D))
-    w = 1.0 - np.abs(dots) + 0.5 * across + 3.0 * (var[rows] + var[cols]) + 1e-6
+    # per point and neighbour (n, k - 1): no (n·(k - 1), 3) copies of the point's own normal
+    Nc = N[nbr[:, 1:]]
+    dots = np.einsum("nkc,nc->nk", Nc, N)
+    D = V[nbr[:, 1:]] - V[:, None, :]
+    L = np.sqrt(np.einsum("nkc,nkc->nk", D, D))
+    D = np.divide(D, L[:, :, None], out=np.zeros_like(D), where=(L > 1e-30)[:, :, None])
+    across = np.abs(np.einsum("nc,nkc->nk", N, D)) + np.abs(np.einsum("nkc,nkc->nk", Nc, D))
+    w = (1.0 - np.abs(dots) + 0.5 * across + 3.0 * (var[:, None] + var[nbr[:, 1:]]) + 1e-6).ravel()
     G = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     G = G.maximum(G.T)
     T = csgraph.minimum_spanning_tree(G).tocoo()
