@@ -13,6 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.scan import Scan
+from core.threads import KD_WORKERS
 
 
 def confidence_weight(c: np.ndarray, full_at: float = 0.2) -> np.ndarray:
@@ -76,7 +77,7 @@ class ScanIndex:
         """
         n = len(X)
         k = max(1, min(k, len(self.points)))
-        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=-1)
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=KD_WORKERS)
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)
@@ -117,5 +118,5 @@ class ScanIndex:
 
     def distance_to_points(self, X: np.ndarray) -> np.ndarray:
         """Distance (n,) from each of X (n, 3) to the nearest scan point."""
-        d, _ = self.tree.query(X, k=1, workers=-1)
+        d, _ = self.tree.query(X, k=1, workers=KD_WORKERS)
         return d
