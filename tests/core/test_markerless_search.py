@@ -194,3 +194,23 @@ def test_twin_deliveries_put_the_feet_alike(tmp_path):
     twins = np.linalg.norm(body["raw"][feet] - body["closed_lowres"][feet], axis=1).mean() * 1000
     assert raw_off < 30.0, raw_off
     assert twins < 12.0, twins
+
+
+def test_rigid_runner_up_far_behind_gets_no_arm_hypotheses(monkeypatch):
+    """closed_lowres-2: its runner-up rigid candidate trails by 0.12 (> RIGID_KEEP_MARGIN); the
+    search runs the arm hypotheses of the best only, and chooses the start it chose from both."""
+    import core.matching.markerless as ml
+    from core.registration.correspondence import ScanIndex
+
+    scan, _ = _scan(np.eye(3))
+    index = ScanIndex(scan)
+    starts, scores = ml.search_starts(scan, index)
+    rigid = sorted(s["score"] for s in scores if s["stage"] == "rigid")
+    art = [s for s in scores if s["stage"] == "articulated"]
+    assert len(rigid) >= 2 and rigid[1] > rigid[0] + ml.RIGID_KEEP_MARGIN
+    assert len(art) == len(ml.ARM_HYPOTHESES) and len({s["candidate"] for s in art}) == 1
+    monkeypatch.setattr(ml, "RIGID_KEEP_MARGIN", np.inf)  # every kept candidate tried
+    all_starts, all_scores = ml.search_starts(scan, index)
+    assert len([s for s in all_scores if s["stage"] == "articulated"]) == 2 * len(art)
+    assert [st.label for st in all_starts[:2]] == [st.label for st in starts[:2]]
+    assert all_starts[0].score == starts[0].score
