@@ -439,7 +439,7 @@ def fit_markerless(
             scan, {}, initial_similarity=start.similarity,
             schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
             callback=callback if rounds == 0 else None, prior_options=prior_options, index=index,
-            assess=rounds == 0, head_turn_check=True, **options,
+            assess=rounds == 0, **options,
         )  # fmt: skip
 
     start, res = tied[0], first_fit(tied[0])
@@ -481,7 +481,7 @@ def fit_markerless(
             retries=MARKERLESS_RETRIES, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
             },
-            head_turn_check=True, **options,
+            **options,
         )  # fmt: skip
     if hair is not None and hair.count:
         res.report.warnings.append(hair.warning())

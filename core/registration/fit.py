@@ -224,7 +224,6 @@ def iter_fit(
     part_weights: dict[str, float] | None = None,
     index: ScanIndex | None = None,
     assess: bool = True,
-    head_turn_check: bool = False,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -257,8 +256,6 @@ def iter_fit(
     assess : measure the result (scan→fit distances, per-part quality check). False for an
         intermediate fit whose vertices alone are used (markerless rounds): the report's
         distances stay NaN and its ``quality`` None (saves ~0.25 s CPU per fit).
-    head_turn_check : judge the head's turn against the torso (``head_turn_deg``) in the quality
-        check; the markerless fit's, not a marker fit's (see ``core.registration.quality``).
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -310,7 +307,7 @@ def iter_fit(
     yield final_report(
         scan, index, ops, full, frame, body, state, report,
         max_distance=max_distance, max_angle_deg=max_angle_deg,
-        shape_prior=shape_prior, t_start=t_start, assess=assess, head_turn_check=head_turn_check,
+        shape_prior=shape_prior, t_start=t_start, assess=assess,
     )  # fmt: skip
 
 
@@ -629,7 +626,6 @@ def final_report(
     shape_prior: bool,
     t_start: float,
     assess: bool = True,
-    head_turn_check: bool = False,
 ) -> FitResult:
     """Final report: the fitted body in metres, its data weights and no-data fraction, the
     scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``);
@@ -667,7 +663,6 @@ def final_report(
         scan_to_fit=d,
         sample_ids=sample,
         reference=body.V if shape_prior else None,
-        head_turn_check=head_turn_check,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
@@ -736,7 +731,6 @@ def fit(
     index: ScanIndex | None = None,
     assess: bool = True,
     retries: tuple[tuple[str, dict[str, Any]], ...] = RETRIES,
-    head_turn_check: bool = False,
 ) -> FitResult:
     """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
@@ -762,7 +756,6 @@ def fit(
         "shape_prior": shape_prior, "marker_outlier_distance": marker_outlier_distance,
         "initial_similarity": initial_similarity, "prior_options": prior_options,
         "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
-        "head_turn_check": head_turn_check,
     }  # fmt: skip
     _check_scan(scan)  # before the KD-tree (a NaN point is a FitError, not scipy's ValueError)
     options["index"] = _scan_index(scan, index, confidence_full_at)  # shared by the retries

@@ -111,8 +111,9 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from core.geometry import MeshDistance
+from core.geometry import MeshDistance, Similarity, umeyama
 from core.registration.correspondence import ScanIndex
 from core.registration.operators import vertex_normals
 from core.scan import Scan
@@ -160,11 +161,20 @@ THRESHOLDS: dict[str, Threshold] = {
     "hand_bend_deg": Threshold(30.0, 45.0),
     "hand_proportion": Threshold(1.25, 1.40),
     "hand_tip_gap_m": Threshold(0.030, float("inf")),
-    "head_turn_deg": Threshold(35.0, 50.0),
+    "head_turn_deg": Threshold(32.0, 40.0),
+    "head_distortion_m": Threshold(0.014, 0.017),
+    "leg_proportion": Threshold(1.30, 1.45),
 }
 #: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
 HAND_FIGURES = ("data_beyond_m", "hand_bend_deg", "hand_proportion", "hand_tip_gap_m")
-UNSCALED = (*HAND_FIGURES, "head_turn_deg")
+#: figures of one part only (NaN on the others)
+PART_FIGURES = {
+    **dict.fromkeys(HAND_FIGURES, ("hand_L", "hand_R")),
+    "head_turn_deg": ("head",),
+    "head_distortion_m": ("head",),
+    "leg_proportion": ("leg_L", "leg_R"),
+}
+UNSCALED = tuple(PART_FIGURES)
 BEYOND_MIN_POINTS = 20
 BEYOND_RADIUS_M = 0.10
 BEYOND_UNEXPLAINED_M = 0.010
@@ -190,6 +200,8 @@ class PartQuality:
     hand_proportion: float = float("nan")
     hand_tip_gap_m: float = float("nan")
     head_turn_deg: float = float("nan")
+    head_distortion_m: float = float("nan")
+    leg_proportion: float = float("nan")
 
 
 @dataclass
@@ -282,6 +294,16 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
             reasons.append(
                 f"{part}: turned {v:.0f}° against the torso (a scanning posture faces forward; "
                 "head fitted tilted or turned on its data?)"
+            )
+        elif key == "head_distortion_m":
+            reasons.append(
+                f"{part}: its shape is {v * 1000:.0f} mm (RMS) from a head's (face slid down "
+                "or round the skull?)"
+            )
+        elif key == "leg_proportion":
+            reasons.append(
+                f"{part}: crotch-to-ankle/crotch-to-neck proportion {v:.2f}× the template's "
+                "(legs slid along their data, the crotch misplaced?)"
             )
         elif key == "scan_to_fit_p95_m":
             reasons.append(f"{part}: scan→fit p95 {v * 1000:.0f} mm")
@@ -380,32 +402,57 @@ def hand_figures(
     }
 
 
-def _head_frame(X: np.ndarray, tpl: Template) -> np.ndarray:
-    """(3, 3) rotation of the head against the torso: columns lateral, up, forward of the head
-    (tragion R → L; tragion midpoint → sellion) expressed in the torso's frame (acromion R → L;
-    ASIS midpoint → acromion midpoint)."""
-    lm = tpl.landmarks
+def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(n,) a third of the area of the triangles F (m, 3) around each vertex of V (n, 3)."""
+    return np.bincount(F.ravel(), np.repeat(_triangle_areas(V, F) / 3.0, 3), minlength=len(V))
 
-    def frame(lateral: np.ndarray, towards: np.ndarray, forward: bool) -> np.ndarray:
-        x = lateral / np.linalg.norm(lateral)
-        t = towards - (towards @ x) * x
-        t = t / np.linalg.norm(t)
-        return np.stack([x, np.cross(t, x), t] if forward else [x, t, np.cross(x, t)], axis=1)
 
-    tr_l, tr_r = X[lm["Tragion_L"]], X[lm["Tragion_R"]]
-    head = frame(tr_l - tr_r, X[lm["Sellion"]] - 0.5 * (tr_l + tr_r), forward=True)
-    ac_l, ac_r = X[lm["Acromion_L"]], X[lm["Acromion_R"]]
-    hips = 0.5 * (X[lm["ASIS_L"]] + X[lm["ASIS_R"]])
-    torso = frame(ac_l - ac_r, 0.5 * (ac_l + ac_r) - hips, forward=False)
-    return torso.T @ head
+def _similarity_to_template(X: np.ndarray, mask: np.ndarray, tpl: Template) -> Similarity:
+    """Least-squares similarity taking the template's vertices ``mask`` (13380,) onto the body
+    ``X``'s, each weighted by its area on the template (the dense face does not dominate)."""
+    w = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))[mask]
+    return umeyama(tpl.V[mask], X[mask], w)
 
 
 def head_turn(X: np.ndarray, template: Template | None = None) -> float:
-    """``head_turn_deg`` of the body ``X`` (13380, 3): the angle of the rotation taking the
-    template's head-against-torso orientation to this body's (:func:`_head_frame`), degrees."""
+    """``head_turn_deg`` of the body ``X`` (13380, 3): the angle of the head's rotation against
+    the torso's, each the rotation of the least-squares similarity taking the template's part
+    onto the body's (all its vertices, area-weighted: :func:`_similarity_to_template`); degrees.
+    """
     tpl = template or load_template()
-    R = _head_frame(tpl.V, tpl).T @ _head_frame(np.asarray(X, dtype=np.float64), tpl)
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    X = np.asarray(X, dtype=np.float64)
+    head = _similarity_to_template(X, tpl.part_mask("head"), tpl)
+    torso = _similarity_to_template(X, tpl.part_mask("torso"), tpl)
+    return float(np.degrees(Rotation.from_matrix(torso.R.T @ head.R).magnitude()))
+
+
+def head_distortion(X: np.ndarray, template: Template | None = None) -> float:
+    """``head_distortion_m`` of the body ``X`` (13380, 3): the area-weighted RMS distance of the
+    head's vertices from the template's head taken onto them by the least-squares similarity
+    (:func:`_similarity_to_template`), metres — how far the head's shape is from a head's."""
+    tpl = template or load_template()
+    X = np.asarray(X, dtype=np.float64)
+    mask = tpl.part_mask("head")
+    w = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))[mask]
+    r = X[mask] - _similarity_to_template(X, mask, tpl).apply(tpl.V[mask])
+    return float(np.sqrt(np.average(np.sum(r**2, axis=1), weights=w)))
+
+
+def leg_proportion(X: np.ndarray, side: str, template: Template | None = None) -> float:
+    """``leg_proportion`` of leg ``side`` (``"L"``/``"R"``) of the body ``X`` (13380, 3):
+    ``max(r, 1/r)``, ``r`` = the inseam (crotch landmark → the shin/foot ring's centre) per trunk
+    length (crotch → the neck/torso ring's centre) over the template's."""
+    tpl = template or load_template()
+    E = np.asarray(tpl.edges, dtype=np.int64)
+
+    def ratio(V: np.ndarray) -> float:
+        crotch = V[tpl.landmarks["Crotch"]]
+        ankle = _ring_centre(V, tpl.part_mask(f"shin_{side}"), tpl.part_mask(f"foot_{side}"), E)
+        neck = _ring_centre(V, tpl.part_mask("neck"), tpl.part_mask("torso"), E)
+        return float(np.linalg.norm(ankle - crotch) / max(np.linalg.norm(neck - crotch), 1e-9))
+
+    r = max(ratio(np.asarray(X, dtype=np.float64)) / ratio(tpl.V), 1e-9)
+    return max(r, 1.0 / r)
 
 
 def _triangle_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -445,7 +492,6 @@ def assess_fit(
     scan_to_fit: np.ndarray | None = None,
     sample_ids: np.ndarray | None = None,
     reference: np.ndarray | None = None,
-    head_turn_check: bool = True,
 ) -> FitQuality:
     """Judge the fitted body ``X`` (13380, 3), metres, against ``scan`` (same frame).
 
@@ -453,10 +499,7 @@ def assess_fit(
     points ``sample_ids`` to the fitted surface; otherwise an evenly spaced subsample of at most
     ``sample`` scan points is measured. ``reference`` (13380, 3): the body the fit started from
     (for ``area_change``; default the template). Returns a :class:`FitQuality` (thresholds: module
-    docstring). ``head_turn_check`` False: ``head_turn_deg`` is reported but not judged (a marker
-    fit: its landmark vertices follow the user's markers, whose placement conventions move the
-    tragion and sellion vertices by centimetres — measured on ``bench.realworld --markers``:
-    correct heads 3-13 mm off the truth read 36-174°).
+    docstring).
     """
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
@@ -517,13 +560,16 @@ def assess_fit(
             "coverage": float(covered[own].mean()),
             "area_change": float(area_change[i]),
             "displacement_m": disp,
-            **dict.fromkeys(HAND_FIGURES, float("nan")),
-            "head_turn_deg": head_turn(X, tpl) if name == "head" else float("nan"),
+            **dict.fromkeys(PART_FIGURES, float("nan")),
         }
         if name.startswith("hand_"):
             figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16, f2s))
-        judged = figures if head_turn_check else {**figures, "head_turn_deg": float("nan")}
-        pv, pr = _judge(name, judged)
+        elif name == "head":
+            figures["head_turn_deg"] = head_turn(X, tpl)
+            figures["head_distortion_m"] = head_distortion(X, tpl)
+        elif name.startswith("leg_"):
+            figures["leg_proportion"] = leg_proportion(X, name[-1], tpl)
+        pv, pr = _judge(name, figures)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
             (reference is not None and figures["area_change"] > LOST_AREA_CHANGE)
@@ -557,6 +603,8 @@ def assess_fit(
             hand_proportion=figures["hand_proportion"],
             hand_tip_gap_m=figures["hand_tip_gap_m"],
             head_turn_deg=figures["head_turn_deg"],
+            head_distortion_m=figures["head_distortion_m"],
+            leg_proportion=figures["leg_proportion"],
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:
