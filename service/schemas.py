@@ -302,6 +302,12 @@ class PartQualityOut(BaseModel):
     head_turn_deg: float | None = Field(
         None, description="head: rotation of the head against the torso from the template's (deg)"
     )
+    head_distortion_m: float | None = Field(
+        None, description="head: RMS distance of its shape from the template head's (m)"
+    )
+    leg_proportion: float | None = Field(
+        None, description="legs: inseam per trunk length over the template's, max(r, 1/r)"
+    )
 
 
 class FitQualityOut(BaseModel):
