@@ -97,8 +97,8 @@ data beyond the hand    > 25 mm      > 40 mm
 hand bend               > 30°        > 45°
 hand proportion         > 1.25       > 1.40
 hand tip gap            > 30 mm      never
-head turn               > 32°        > 40°
-head distortion         > 14 mm      > 17 mm
+head turn               > 32°        > 36°
+head distortion         > 14 mm      > 18 mm
 leg proportion          > 1.30       > 1.45
 ======================  ===========  ==========
 
@@ -179,8 +179,8 @@ THRESHOLDS: dict[str, Threshold] = {
     "hand_bend_deg": Threshold(30.0, 45.0),
     "hand_proportion": Threshold(1.25, 1.40),
     "hand_tip_gap_m": Threshold(0.030, float("inf")),
-    "head_turn_deg": Threshold(32.0, 40.0),
-    "head_distortion_m": Threshold(0.014, 0.017),
+    "head_turn_deg": Threshold(32.0, 36.0),
+    "head_distortion_m": Threshold(0.014, 0.018),
     "leg_proportion": Threshold(1.30, 1.45),
 }
 #: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
