@@ -370,4 +370,10 @@ def test_lost_hand_is_retried_from_another_arm_start_and_recovered(tmp_path):
     assert note.startswith("quality retries: first fit: failed; arms started 10° out: "), note
     q = res.report.quality
     assert _hand_offsets(res.vertices, truth)["hand_L"] < 0.05
-    assert q.quality != "failed" and q.parts["hand_L"].quality != "failed", q.reasons
+    assert q.parts["hand_L"].quality != "failed", q.reasons
+    # the head of this marker fit is turned (36-37° against the torso, 39 mm off the truth's in
+    # bench.realworld --markers): failed for it, not for the hand
+    head = _mask("head")
+    head_off = np.linalg.norm(res.vertices[head].mean(0) - truth[head].mean(0))
+    failed = {k for k, p in q.parts.items() if p.quality == "failed"}
+    assert failed <= {"head"} and (not failed or head_off > 0.03), (q.reasons, head_off)
