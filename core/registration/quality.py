@@ -54,7 +54,7 @@ Per part (all distances metres):
   fits of open and mitten hands read 2-16 mm, the truths 1-11 mm.
 - ``head_turn_deg`` (head only, else NaN): the angle of the head's rotation against the torso's,
   each the rotation of the least-squares similarity taking the template's part onto the body's
-  (all its vertices, weighted by their area on the template; :func:`head_turn`). A head fitted
+  (all its vertices, weighted by their area on the template; :func:`head_figures`). A head fitted
   flexed, turned or tilted on the skull's data keeps its scan→fit, fit→scan and coverage (the
   skull is nearly round): markerless raw-19 of ``core.synth.scanner_outputs`` (before the head
   prior, :data:`core.registration.shape_prior.HEAD_PRIOR`) turned 58° off the truth's, 72 mm off,
@@ -69,7 +69,7 @@ Per part (all distances metres):
   centimetres (a landmark-frame figure read 32-174° on correct marker fits), so marker fits are
   judged too.
 - ``head_distortion_m`` (head only): the area-weighted RMS distance of the head's vertices from
-  the template's head taken onto them by that similarity (:func:`head_distortion`): how far the
+  the template's head taken onto them by that similarity (:func:`head_figures`): how far the
   head's shape is from a head's. A face slid down along the skull's data keeps the part on its
   data: marker closed_touching-17 (sellion 59 mm, menton 66 mm, crown 14 mm below the truth's,
   head 53 mm off; scan→fit p95 7 mm, fit→scan p95 12 mm, coverage 0.80) read `good` before this
@@ -133,7 +133,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from core.geometry import MeshDistance, Similarity, umeyama
+from core.geometry import MeshDistance, umeyama
 from core.registration.correspondence import ScanIndex
 from core.registration.operators import vertex_normals
 from core.scan import Scan
@@ -427,35 +427,29 @@ def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.bincount(F.ravel(), np.repeat(_triangle_areas(V, F) / 3.0, 3), minlength=len(V))
 
 
-def _similarity_to_template(X: np.ndarray, mask: np.ndarray, tpl: Template) -> Similarity:
-    """Least-squares similarity taking the template's vertices ``mask`` (13380,) onto the body
-    ``X``'s, each weighted by its area on the template (the dense face does not dominate)."""
-    w = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))[mask]
-    return umeyama(tpl.V[mask], X[mask], w)
+def head_figures(X: np.ndarray, template: Template | None = None) -> tuple[float, float]:
+    """``(head_turn_deg, head_distortion_m)`` of the body ``X`` (13380, 3), from the
+    least-squares similarities taking the template's head and torso onto the body's (all their
+    vertices, each weighted by its area on the template, so the dense face does not dominate).
 
-
-def head_turn(X: np.ndarray, template: Template | None = None) -> float:
-    """``head_turn_deg`` of the body ``X`` (13380, 3): the angle of the head's rotation against
-    the torso's, each the rotation of the least-squares similarity taking the template's part
-    onto the body's (all its vertices, area-weighted: :func:`_similarity_to_template`); degrees.
+    head_turn_deg : the angle of the head's rotation against the torso's, degrees.
+    head_distortion_m : the area-weighted RMS distance of the head's vertices from the template's
+        head taken onto them, metres — how far the head's shape is from a head's.
     """
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
-    head = _similarity_to_template(X, tpl.part_mask("head"), tpl)
-    torso = _similarity_to_template(X, tpl.part_mask("torso"), tpl)
-    return float(np.degrees(Rotation.from_matrix(torso.R.T @ head.R).magnitude()))
+    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
+    head, torso = tpl.part_mask("head"), tpl.part_mask("torso")
+    head_sim = umeyama(tpl.V[head], X[head], areas[head])
+    torso_sim = umeyama(tpl.V[torso], X[torso], areas[torso])
+    turn = float(np.degrees(Rotation.from_matrix(torso_sim.R.T @ head_sim.R).magnitude()))
+    r = X[head] - head_sim.apply(tpl.V[head])
+    return turn, float(np.sqrt(np.average(np.sum(r**2, axis=1), weights=areas[head])))
 
 
-def head_distortion(X: np.ndarray, template: Template | None = None) -> float:
-    """``head_distortion_m`` of the body ``X`` (13380, 3): the area-weighted RMS distance of the
-    head's vertices from the template's head taken onto them by the least-squares similarity
-    (:func:`_similarity_to_template`), metres — how far the head's shape is from a head's."""
-    tpl = template or load_template()
-    X = np.asarray(X, dtype=np.float64)
-    mask = tpl.part_mask("head")
-    w = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))[mask]
-    r = X[mask] - _similarity_to_template(X, mask, tpl).apply(tpl.V[mask])
-    return float(np.sqrt(np.average(np.sum(r**2, axis=1), weights=w)))
+def head_turn(X: np.ndarray, template: Template | None = None) -> float:
+    """``head_turn_deg`` of the body ``X`` (13380, 3), degrees (:func:`head_figures`)."""
+    return head_figures(X, template)[0]
 
 
 def leg_proportion(X: np.ndarray, side: str, template: Template | None = None) -> float:
@@ -585,8 +579,7 @@ def assess_fit(
         if name.startswith("hand_"):
             figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16, f2s))
         elif name == "head":
-            figures["head_turn_deg"] = head_turn(X, tpl)
-            figures["head_distortion_m"] = head_distortion(X, tpl)
+            figures["head_turn_deg"], figures["head_distortion_m"] = head_figures(X, tpl)
         elif name.startswith("leg_"):
             figures["leg_proportion"] = leg_proportion(X, name[-1], tpl)
         pv, pr = _judge(name, figures)
