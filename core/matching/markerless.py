@@ -517,7 +517,7 @@ def fit_markerless(
 
 #: A hand of the first shape-space fit whose fingertips (quality figure ``hand_tip_gap_m``) are
 #: further than this from the scan is fitted as a fist in the soft-marker rounds.
-FIST_TIP_GAP_M = 0.055
+FIST_TIP_GAP_M = 0.042
 
 
 def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
@@ -529,9 +529,12 @@ def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
     Scanned fists (and closed meshes' fused fists) end 4-5 cm short of an open hand; the data
     term does not reach the fingers, so the open template hand kept its fingers straight out in
     the air and its centroid 44-63 mm off the fist's. Fingertip gaps of the first shape-space fit
-    on ``core.synth.scanner_outputs`` cases: fists 70-92 mm (closed_lowres-16, raw-24,
-    closed_plate-27's right hand), open hands 1-44 mm (raw-28 and closed_touching-29, hands
-    33-44 mm off the truth there, read 34-44).
+    on the 40 scans of ``core.synth.scanner_outputs.benchmark_cases(40)`` (since scan points
+    nearest the fingers no longer pull the palm over them, ``shape_prior._scan_to_template``):
+    21 of the 22 fists 49-91 mm (closed_plate-3's left hand 49, raw_inward-11's 54 and 54, the
+    rest 55 and up; closed_plate-27's left fist, against the thigh, reads 6), the 58 open hands
+    1-36 mm (closed_lowres-28 33/36, raw_clutter-10 28/32): the limit lies halfway. (Before, the
+    palm pulled over the fingers' data read open hands up to 44 mm and the limit was 55 mm.)
     """
     return "".join(x for x in "LR" if hand_tip_gap(index, X, x) > FIST_TIP_GAP_M)
 

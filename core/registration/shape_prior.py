@@ -291,20 +291,31 @@ def _scan_to_template(
     max_distance: float,
     n_sample: int,
     min_cos: float = 0.5,
+    explained: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample."""
+    """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample: each
+    scan point with its closest compatible vertex of ``cand``.
+
+    ``explained``: vertices that take no data (the template's regions that scan badly: fingers,
+    toes, ears) but explain the scan points closest to them: such a point makes no pair, where
+    it would otherwise pull the nearest data vertex over it (a closed mesh's mitten pulled the
+    palm, and with it the hand, 5-31 mm down the forearm's axis).
+    """
     pts = index.points
     step = max(1, len(pts) // n_sample)
     sel = np.arange(0, len(pts), step)
-    tree = cKDTree(X[cand])
+    n_data = len(cand)
+    allc = cand if explained is None else np.r_[cand, explained]
+    tree = cKDTree(X[allc])
     d, j = tree.query(pts[sel], k=4, distance_upper_bound=max_distance)
     valid = np.isfinite(d)
     jj = np.where(valid, j, 0)
-    dots = np.einsum("skc,sc->sk", N[cand][jj], index.normals[sel])
+    dots = np.einsum("skc,sc->sk", N[allc][jj], index.normals[sel])
     ok = valid & (dots > min_cos)
-    has = ok.any(axis=1)
     first = np.argmax(ok, axis=1)
-    v = cand[jj[np.arange(len(sel)), first]][has]
+    hit = jj[np.arange(len(sel)), first]
+    has = ok.any(axis=1) & (hit < n_data)
+    v = allc[hit][has]
     p = sel[has]
     w = index.point_weight[p] * ~index.boundary[p]
     return v, pts[p], w, index.normals[p]
@@ -595,8 +606,10 @@ def fit_body_prior(
             w = corr.weights[ok]
             Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
             if bidirectional:  # scan → template pairs too: the body must cover the scan
+                min_cos = np.cos(np.radians(max_angle_deg))
+                explained = np.flatnonzero(~mask & sub)  # bad-scan regions explain their data
                 s_rows, s_P, s_w, s_N = _scan_to_template(
-                    index, X, N, cand, md, scan_sample, np.cos(np.radians(max_angle_deg))
+                    index, X, N, cand, md, scan_sample, min_cos, explained=explained
                 )
                 rows = np.r_[rows, s_rows]
                 P = np.vstack([P, s_P])

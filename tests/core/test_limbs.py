@@ -102,7 +102,7 @@ def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(tmp_path):
     off = _offsets_mm(open_, truth, ("hand_L", "hand_R"))
     assert min(off.values()) > 30.0, off  # the open hands' centroids are this far off the fists'
     # a fisted fit's fingertips lie on the scan: the markerless rounds would not curl them again
-    # (the subject's own open hands read 50 mm here, below FIST_TIP_GAP_M; the template's open
-    # hand fitted to these fists reads 67-69 mm: the rounds fit it as a fist)
+    # (the template's open hand fitted to these fists reads 64-72 mm: the rounds fit it as a
+    # fist)
     index = ScanIndex(scan)
     assert fisted_hands(index, truth) == ""

@@ -1,0 +1,34 @@
+"""The body prior's scan→template pairs: data in regions the template takes no data from
+(fingers, toes, ears) do not pull the nearest data vertex over them."""
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.registration.correspondence import ScanIndex
+from core.registration.operators import vertex_normals
+from core.registration.shape_prior import _scan_to_template
+from core.scan import Scan
+from core.template import load_template
+
+
+def test_scan_points_on_the_fingers_pull_no_palm_vertex() -> None:
+    tpl = load_template()
+    V, F = tpl.V, np.asarray(tpl.F, np.int64)
+    N = vertex_normals(V, F)
+    n = len(V)
+    scan = Scan(V=V, F=F, normals=N, confidence=np.ones(n), boundary=np.zeros(n, bool))
+    index = ScanIndex(scan)  # the scan is the template's own surface
+    data = ~np.asarray(tpl.bad_scan_mask, bool)
+    cand, masked = np.flatnonzero(data), np.flatnonzero(~data)
+    finger_tree = cKDTree(V[tpl.mask("fingers")])
+
+    # without the masked vertices, the fingers' scan points pair with palm vertices cm away
+    v, P, _, _ = _scan_to_template(index, V, N, cand, 0.05, n)
+    on_fingers = finger_tree.query(P)[0] < 1e-9
+    assert on_fingers.sum() > 100
+    assert np.linalg.norm(V[v] - P, axis=1)[on_fingers].max() > 0.02
+    # with them, a point on the fingers is explained by the fingers: only exact pairs are left
+    v, P, _, _ = _scan_to_template(index, V, N, cand, 0.05, n, explained=masked)
+    assert np.linalg.norm(V[v] - P, axis=1).max() < 1e-6
+    assert not np.isin(v, masked).any()
+    assert not (finger_tree.query(P)[0] < 1e-9).any()
