@@ -96,12 +96,12 @@ def test_markerless_assesses_and_retries_only_its_last_round(monkeypatch):
 
     monkeypatch.setattr(ml, "fit", spy)
     c = make_case(105, small=True)
-    res = ml.fit_markerless(c.scan, schedule=Schedule.fast())
-    # the first fit (two from near-tied starts), then 4 rounds: only the last assessed
-    assert len(seen) in (5, 6)
+    # the first fit (two from near-tied starts), then 2 rounds: only the last assessed
+    res = ml.fit_markerless(c.scan, schedule=Schedule.fast(), soft_marker_rounds=2)
+    assert len(seen) in (3, 4)
     assert [kw["assess"] for kw in seen] == [False] * (len(seen) - 1) + [True]
     assert [kw["retry"] for kw in seen] == [False] * (len(seen) - 1) + [True]
-    assert all(kw["retries"] == ml.MARKERLESS_RETRIES for kw in seen[-4:])
+    assert all(kw["retries"] == ml.MARKERLESS_RETRIES for kw in seen[-2:])
     assert len({id(kw["index"]) for kw in seen}) == 1  # no hair here: one scan, one KD-tree
     assert res.report.quality is not None and np.isfinite(res.report.scan_to_fit_p95_m)
     # without soft-marker rounds the one fit is assessed and may use every retry
@@ -141,21 +141,20 @@ def test_pose_jacobian_matches_finite_differences():
 
 @pytest.mark.slow
 def test_markerless_fit_of_a_150k_scan_that_retries_takes_under_8_s_cpu(tmp_path):
-    # raw-31 of core.synth.scanner_outputs: 185,869 vertices (more than the target's 150 k),
-    # quality suspect, so the last round's retry runs. Measured (run_fit, as bench.realworld
-    # times it) on raw-24 (149,991 vertices, suspect until its hand was fitted as a fist, then
-    # good without a retry): 17.4 s CPU before the savings, 8.7-8.8 s at load 7 on 2 cores,
-    # 6.5-7 s at low load; raw-31 10.1 s at load 6; after the body prior's normal equations
-    # without the Jacobian copy, the search's far rigid runner-up dropped and single-threaded
-    # KD-tree queries (core.threads.KD_WORKERS): raw-31 9.0-10.1 s at load 4.5-5.5 (10.5 before,
-    # same load); the bound allows for load.
+    # raw-35 of core.synth.scanner_outputs: 189,807 vertices (more than the target's 150 k),
+    # quality suspect (hands), so the last round's retry runs: 7.1 s CPU at load 2-3 with one
+    # soft-marker round (raw-31, the case before, reads good since then: no retry). Earlier
+    # measurements (raw-31, four rounds): 10.1 s at load 6 before the body prior's normal
+    # equations without the Jacobian copy, the search's far rigid runner-up dropped and
+    # single-threaded KD-tree queries, 9.0-10.1 s at load 4.5-5.5 after; the bound allows for
+    # load.
     import core.io  # noqa: F401  (imported before the clock, as in a running service)
     from core.synth.scanner_outputs import make_case as make_realworld
     from service.cli import run_fit
 
-    case = make_realworld(31, "raw")
+    case = make_realworld(35, "raw")
     assert 150_000 < len(case.V) < 200_000
-    path = case.write(tmp_path / "raw-31.ply")
+    path = case.write(tmp_path / "raw-35.ply")
     t = time.process_time()
     _, res, _ = run_fit(path, None, quiet=True)
     cpu = time.process_time() - t
