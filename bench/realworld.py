@@ -43,6 +43,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from core.geometry import area_samples
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 MM = 1000.0
@@ -66,21 +68,6 @@ def _commit() -> str:
         return out.stdout.strip() + ("-dirty" if dirty else "")
     except OSError:
         return "unknown"
-
-
-def area_samples(
-    V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, *, faces: bool = False
-) -> Any:
-    """``n`` points (n, 3) uniformly distributed by area on the triangle mesh (V, F); with
-    ``faces`` also the (n,) index of the triangle each lies on."""
-    rng = np.random.default_rng(seed)
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    fi = rng.choice(len(F), size=n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    S = (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
-    return (S, fi) if faces else S
 
 
 def fit_to_scan(scan: Any, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

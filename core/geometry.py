@@ -56,6 +56,21 @@ def umeyama(
     return Similarity(s=s, R=R, t=t)
 
 
+def area_samples(
+    V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, *, faces: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """``n`` points (n, 3) uniformly distributed by area on the triangle mesh (V, F); with
+    ``faces`` also the (n,) index of the triangle each lies on."""
+    rng = np.random.default_rng(seed)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    fi = rng.choice(len(F), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    S = (1 - s)[:, None] * a[fi] + (s * (1 - r2))[:, None] * b[fi] + (s * r2)[:, None] * c[fi]
+    return (S, fi) if faces else S
+
+
 def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted face normals (m, 3): cross products, length = 2 × triangle area."""
     V = np.asarray(V, dtype=np.float64)

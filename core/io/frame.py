@@ -8,8 +8,10 @@ registration's rigid alignment, and no translation is applied.
 Auto-detection rules
 --------------------
 - **Up**: with head and foot markers, the signed file axis closest to the foot -> head
-  direction. Otherwise the axis of largest extent, if it is at least 1.15x the other two; its
-  sign is taken as **positive** (a file's up axis is assumed to point up, as every scanner
+  direction. Otherwise the axis of largest extent, if it is at least 1.15x the other two (with
+  two extents closer than that, as a body with its arms spread wide has, the one of the two
+  that is not the body's left-right mirror axis, when the points tell); its sign is taken as
+  **positive** (a file's up axis is assumed to point up, as every scanner
   we know writes it). Pass ``up="-y"`` etc. for upside-down files; a markerless fit that finds
   the body head-down turns the scan over (:func:`turn_over`).
 - **Units**: the body's height (robust extent along the up axis): 1.0-2.3 -> m, 100-230 -> cm,
@@ -112,18 +114,62 @@ def _up_from_markers(markers: Mapping[str, np.ndarray]) -> str | None:
     return ("+" if d[a] > 0 else "-") + "xyz"[a]
 
 
-def _up_from_extent(ext: np.ndarray) -> str:
+def _mirror_gap(V: np.ndarray, axis: int, about: int, n: int = 4000) -> float:
+    """Median distance (file units) from the points ``V`` (q, 3), mirrored across a plane
+    through their mean, to the nearest unmirrored point (an even subsample of ≤ ``n``
+    points); the plane's normal is file axis ``axis`` turned about axis ``about`` by
+    :data:`MIRROR_TURNS_DEG`, the least gap of those.
+
+    A standing body is nearly mirror-symmetric left to right, never head to foot: mirrored
+    across its left-right axis it lands on itself (the posture's asymmetry apart), mirrored
+    across its vertical the head lands among the feet."""
+    from scipy.spatial import cKDTree
+
+    P = V[np.linspace(0, len(V) - 1, min(n, len(V))).astype(np.int64)]
+    c = P.mean(axis=0)
+    tree = cKDTree(P)
+    third = 3 - axis - about
+    best = np.inf
+    for deg in MIRROR_TURNS_DEG:
+        nrm = np.zeros(3)
+        nrm[axis], nrm[third] = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        M = P - 2.0 * np.outer((P - c) @ nrm, nrm)
+        best = min(best, float(np.median(tree.query(M, k=1)[0])))
+    return best
+
+
+#: Turns (degrees) of the mirror plane's normal tried by :func:`_mirror_gap`: a body faces a
+#: file axis only roughly (scanning postures turn the body or head by up to ~15°).
+MIRROR_TURNS_DEG = (-20.0, -10.0, 0.0, 10.0, 20.0)
+
+#: With two extents within :data:`DOMINANCE` of each other (arms spread as wide as the body is
+#: tall), the one whose mirror gap (:func:`_mirror_gap`) is at least this many times the other's
+#: is up.
+MIRROR_RATIO = 1.6
+
+
+def _up_from_extent(ext: np.ndarray, V: np.ndarray | None = None) -> str:
+    """The largest extent's axis, + sign; where the two largest are within :data:`DOMINANCE`
+    of each other (a body with its arms spread as wide as it is tall), the one of the two that
+    is not the body's mirror axis (:func:`_mirror_gap`), if the points ``V`` (q, 3) tell."""
     order = np.argsort(ext)[::-1]
     a, b = int(order[0]), int(order[1])
-    if ext[b] <= 0 or ext[a] < DOMINANCE * ext[b]:
-        raise UnitsError(
-            "cannot tell which axis is up: the scan's extents "
-            f"(x {ext[0]:.4g}, y {ext[1]:.4g}, z {ext[2]:.4g}) have no clearly largest axis "
-            f"(need >= {DOMINANCE}x the others); give markers with head and foot landmarks, or "
-            f"{_OPTIONS}",
-            extents=ext.tolist(),
-        )
-    return "+" + "xyz"[a]
+    if ext[b] > 0 and ext[a] >= DOMINANCE * ext[b]:
+        return "+" + "xyz"[a]
+    if ext[b] > 0 and V is not None and len(V) >= 100:
+        ga, gb = _mirror_gap(V, a, about=b), _mirror_gap(V, b, about=a)
+        if ga >= MIRROR_RATIO * gb:
+            return "+" + "xyz"[a]
+        if gb >= MIRROR_RATIO * ga:
+            return "+" + "xyz"[b]
+    raise UnitsError(
+        "cannot tell which axis is up: the scan's extents "
+        f"(x {ext[0]:.4g}, y {ext[1]:.4g}, z {ext[2]:.4g}) have no clearly largest axis "
+        f"(need >= {DOMINANCE}x the others) and neither of the two largest is clearly the "
+        f"body's left-right mirror axis; give markers with head and foot landmarks, or "
+        f"{_OPTIONS}",
+        extents=ext.tolist(),
+    )
 
 
 def _units_from_height(h: float, up: str) -> str:
@@ -183,7 +229,7 @@ def detect_frame(
     if up == "auto":
         up_found = _up_from_markers(markers) if markers else None
         if up_found is None:
-            up_found = _up_from_extent(ext)
+            up_found = _up_from_extent(ext, V)
     else:
         up_found = up
     axis = "xyz".index(up_found[1])

@@ -181,6 +181,56 @@ SEARCH_POINT_WEIGHT = 0.1
 RIGID_KEEP_MARGIN = 0.05
 
 
+#: Band of heights (shares of the body's height from the soles) whose depth sets the search's
+#: template girth (:func:`girth_scale`): belly, waist and chest.
+GIRTH_BAND = (0.45, 0.70)
+#: Half-width (share of the height) of the central strip whose depth :func:`band_depth` takes:
+#: the trunk's middle, clear of arms and hands hanging or spread beside it.
+GIRTH_STRIP = 0.06
+#: The search's template is widened and deepened by at most this factor (:func:`girth_scale`).
+GIRTH_MAX = 1.6
+#: A widened template (:func:`girth_scale`) joins the search above this factor.
+GIRTH_MIN = 1.15
+
+
+def band_depth(P: np.ndarray, band: tuple[float, float] = GIRTH_BAND) -> float:
+    """Front-to-back depth of the points ``P`` (q, 3; +Y up) in a band of heights, as a share
+    of their height: the extent (2nd to 98th percentile) along the band's narrower horizontal
+    principal axis, of the points within :data:`GIRTH_STRIP` of its middle along the wider one
+    (arms spread along the wider axis and hang beside the trunk)."""
+    y = P[:, 1]
+    lo, hi = np.percentile(y, [0.2, 99.8])
+    h = hi - lo
+    S = P[(y > lo + band[0] * h) & (y < lo + band[1] * h)][:, [0, 2]]
+    if len(S) < 10 or h <= 0:
+        return float("nan")
+    S = S - np.median(S, axis=0)
+    _, vecs = np.linalg.eigh(S.T @ S)
+    d = S[np.abs(S @ vecs[:, 1]) < GIRTH_STRIP * h] @ vecs[:, 0]
+    if len(d) < 10:
+        return float("nan")
+    return float(np.percentile(d, 98) - np.percentile(d, 2)) / h
+
+
+@cache
+def _template_band_depth() -> float:
+    """:func:`band_depth` of the template's surface (60 000 points by area, as a scan has)."""
+    from core.geometry import area_samples
+
+    tpl = load_template()
+    return band_depth(area_samples(tpl.V, np.asarray(tpl.F, np.int64), 60_000))
+
+
+def girth_scale(scan: Scan) -> float:
+    """Factor (1 to :data:`GIRTH_MAX`) by which the search widens and deepens the template
+    about its vertical axis: the scan's trunk depth over the template's (:func:`band_depth`),
+    where that is more than 1."""
+    r = band_depth(np.asarray(scan.V))
+    if not np.isfinite(r):
+        return 1.0
+    return float(np.clip(r / _template_band_depth(), 1.0, GIRTH_MAX))
+
+
 @dataclass
 class Start:
     """A starting point for the body prior: similarity, bone rotations, two-way score."""
@@ -244,7 +294,13 @@ def search_starts(
 ) -> tuple[list[Start], list[dict[str, Any]]]:
     """Rounds 1 and 2 of :func:`choose_alignment`: every articulated start, best score first,
     and every trial's score. The ``keep`` best rigid candidates go on to round 2, those within
-    :data:`RIGID_KEEP_MARGIN` of the best."""
+    :data:`RIGID_KEEP_MARGIN` of the best. Where the scan's trunk is deeper than the
+    template's (:func:`girth_scale` > :data:`GIRTH_MIN`), every rigid candidate is tried from
+    the template widened and deepened about its vertical axis by that factor too, and goes on
+    to round 2 with the middle arm hypothesis (the best of them with the others): from either
+    template a heavy body's rigid scores read 1.5-1.6 whichever way up or round, and the best
+    rigid candidate was the body upside down (closed_lowres-59/73 of
+    ``core.synth.scanner_outputs``); the articulated round tells."""
     tpl = load_template()
     ops = template_operators()
     F = np.asarray(tpl.F, dtype=np.int64)
@@ -252,9 +308,22 @@ def search_starts(
     body_ids = np.flatnonzero(ops.full.data_mask)[::6]
     scan_ids = scan_sample(scan)
 
-    def run(sim: Similarity, pose: dict | None, iterations: int, articulated: bool) -> Any:
+    # the average template, and where the scan's trunk is deeper, one as wide and deep as it
+    # (a heavy body's scan matched no start of the average template): each rigid candidate
+    # from both, the best go on; a start keeps only similarity, pose and coefficients
+    g = girth_scale(scan)
+    templates = [(1.0, tpl.V)]
+    if g > GIRTH_MIN:
+        mid = np.median(tpl.V, axis=0)
+        wide = tpl.V.copy()
+        wide[:, [0, 2]] = mid[[0, 2]] + g * (wide[:, [0, 2]] - mid[[0, 2]])
+        templates.append((g, wide))
+
+    def run(
+        V0: np.ndarray, sim: Similarity, pose: dict | None, iterations: int, articulated: bool
+    ) -> Any:
         return fit_body_prior(
-            index, tpl.V, F, empty_i, empty_p, sim, data_mask=ops.full.data_mask,
+            index, V0, F, empty_i, empty_p, sim, data_mask=ops.full.data_mask,
             iterations=iterations, k_schedule=(0, 0, 6) if articulated else (0,),
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
@@ -265,21 +334,37 @@ def search_starts(
     scores: list[dict[str, Any]] = []
     rigid = []
     for i, sim in enumerate(candidate_alignments(scan)):
-        t = run(sim, None, 3, False)
-        sc = two_way_score(index, t.X, body_ids, scan_ids)
-        rigid.append((sc, i, t))
-        scores.append({"stage": "rigid", "candidate": i, "score": sc, "coverage": t.coverage})
+        for gi, V0 in templates:
+            t = run(V0, sim, None, 3, False)
+            sc = two_way_score(index, t.X, body_ids, scan_ids)
+            rigid.append((sc, i, gi, V0, t))
+            scores.append({"stage": "rigid", "candidate": i, "girth": gi, "score": sc,
+                           "coverage": t.coverage})  # fmt: skip
     rigid.sort(key=lambda r: r[0])
+    plain = [r for r in rigid if r[2] == 1.0]
+    chosen = [(r, ARM_HYPOTHESES) for r in plain[:keep] if r[0] <= plain[0][0] + RIGID_KEEP_MARGIN]
     starts: list[Start] = []
-    for _, i, t in [r for r in rigid[:keep] if r[0] <= rigid[0][0] + RIGID_KEEP_MARGIN]:
-        for abd in ARM_HYPOTHESES:
-            pose = arm_pose(abd)
-            a = run(t.similarity, pose, 6, True)
-            sc = two_way_score(index, a.X, body_ids, scan_ids)
-            label = f"candidate {i}, arms {abd:.0f}°"
-            scores.append({"stage": "articulated", "candidate": i, "arms_deg": abd,
-                           "score": sc, "coverage": a.coverage})  # fmt: skip
-            starts.append(Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label))
+
+    def arms_start(r: tuple, abd: float) -> Start:
+        _, i, gi, V0, t = r
+        a = run(V0, t.similarity, arm_pose(abd), 6, True)
+        sc = two_way_score(index, a.X, body_ids, scan_ids)
+        label = f"candidate {i}{f', girth ×{gi:.2f}' if gi != 1.0 else ''}, arms {abd:.0f}°"
+        scores.append({"stage": "articulated", "candidate": i, "girth": gi, "arms_deg": abd,
+                       "score": sc, "coverage": a.coverage})  # fmt: skip
+        return Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label)
+
+    for r, hypotheses in chosen:
+        starts += [arms_start(r, abd) for abd in hypotheses]
+    wide = [r for r in rigid if r[2] != 1.0]
+    if wide:
+        # a heavy body's rigid scores read 1.5-1.6 whichever way up or round: each candidate
+        # of the widened template gets the middle arm hypothesis, the best one the others
+        mid_abd = ARM_HYPOTHESES[len(ARM_HYPOTHESES) // 2]
+        tried = [(arms_start(r, mid_abd), r) for r in wide]
+        starts += [st for st, _ in tried]
+        best = min(tried, key=lambda x: x[0].score)[1]
+        starts += [arms_start(best, abd) for abd in ARM_HYPOTHESES if abd != mid_abd]
     starts.sort(key=lambda st: st.score)
     return starts, scores
 

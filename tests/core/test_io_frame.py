@@ -114,3 +114,24 @@ def test_turn_over_flips_the_up_axis_and_keeps_the_file_map(up):
     np.testing.assert_allclose(scan.V, scan.frame.to_canonical(V_file), atol=1e-12)
     np.testing.assert_allclose(scan.normals, n0 @ M.T)
     assert scan.V[TPL.landmarks["Vertex"], 1] > scan.V[:, 1].min() + 1.5  # head up now
+
+
+@pytest.mark.parametrize("up", ["+y", "+x", "+z"])
+def test_arms_spread_as_wide_as_the_body_is_tall(up):
+    # closed_lowres-59 of core.synth.scanner_outputs: a man with his arms 60° out, 1.52 m wide
+    # and 1.65 m tall (1.08x): the extents alone cannot tell up; the body's left-right mirror
+    # symmetry can (refused as "cannot tell which axis is up" before)
+    pytest.importorskip("skimage")
+    from core.io.frame import _mirror_gap
+    from core.synth.scanner_outputs import make_case
+
+    c = make_case(59, "closed_lowres")
+    assert c.up == "+y" and c.units == "mm"
+    V = to_file(np.asarray(c.V) @ rotation_for_up(c.up).T, up, 1.0)  # file +y -> file `up`
+    a = "xyz".index(up[1])
+    ext = np.ptp(V, axis=0)
+    side = int(np.argmax(np.where(np.arange(3) == a, 0.0, ext)))
+    assert ext[a] < 1.15 * ext[side]  # ambiguous by extents
+    assert _mirror_gap(V, a, about=side) > 1.6 * _mirror_gap(V, side, about=a)
+    fr = detect_frame(V)
+    assert (fr.up, fr.units) == (up, "mm")
