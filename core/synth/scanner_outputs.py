@@ -718,6 +718,24 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     return out[:n]
 
 
+#: Lowest BMI (kg/m²) of :func:`heavy_cases`' bodies: the heaviest real booth-scan subjects
+#: of issue 12 reach ~45.
+HEAVY_BMI = 42.0
+
+
+def heavy_cases(n: int = 20, start: int = 32) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of heavy bodies (the off-model body of the seed,
+    :func:`make_case`'s, has a BMI ≥ :data:`HEAVY_BMI`; seeds from ``start`` on, clear of
+    :func:`benchmark_cases`' first 40), each as a ``closed_lowres`` and a ``raw`` twin."""
+    out: list[tuple[int, str]] = []
+    seed = start
+    while len(out) < n:
+        if off_model_body(np.random.default_rng([seed, 101])).params["bmi"] >= HEAVY_BMI:
+            out += [(seed, "closed_lowres"), (seed, "raw")]
+        seed += 1
+    return out[:n]
+
+
 __all__ = [
     "HAIR_STYLES",
     "KINDS",
@@ -729,6 +747,7 @@ __all__ = [
     "file_transform",
     "hair_mesh",
     "hair_volume",
+    "heavy_cases",
     "make_case",
     "other_convention_markers",
     "raw_scan",

@@ -140,25 +140,36 @@ def test_pose_jacobian_matches_finite_differences():
 
 
 @pytest.mark.slow
-def test_markerless_fit_of_a_150k_scan_that_retries_takes_under_8_s_cpu(tmp_path):
-    # raw-35 of core.synth.scanner_outputs: 189,807 vertices (more than the target's 150 k),
-    # quality suspect (hands), so the last round's retry runs: 7.1 s CPU at load 2-3 with one
-    # soft-marker round (raw-31, the case before, reads good since then: no retry). Earlier
-    # measurements (raw-31, four rounds): 10.1 s at load 6 before the body prior's normal
-    # equations without the Jacobian copy, the search's far rigid runner-up dropped and
-    # single-threaded KD-tree queries, 9.0-10.1 s at load 4.5-5.5 after; the bound allows for
-    # load.
+def test_markerless_fit_of_a_150k_scan_that_retries_takes_under_8_s_cpu(tmp_path, monkeypatch):
+    # raw-35 of core.synth.scanner_outputs: 189,807 vertices (more than the target's 150 k). Its
+    # fit reads good, so its first assessment is made to read hand_L suspect: the last round's
+    # retry (lost parts weighted, scan→body pairs) then runs as on a fit that needs it, the
+    # worst case of a markerless fit's time. Measured: raw-35 7.1 s CPU with a real retry at
+    # load 2-3 (its hands read suspect before the search's widened template); earlier, raw-31
+    # with four soft-marker rounds: 9.0-10.1 s at load 4.5-5.5; the bound allows for load.
     import core.io  # noqa: F401  (imported before the clock, as in a running service)
+    import core.registration.fit as fit_mod
     from core.synth.scanner_outputs import make_case as make_realworld
     from service.cli import run_fit
 
+    real_assess, calls = fit_mod.assess_fit, []
+
+    def first_reads_suspect(*a, **k):
+        q = real_assess(*a, **k)
+        calls.append(q.quality)
+        if len(calls) == 1:
+            q.quality, q.parts["hand_L"].quality = "suspect", "suspect"
+            q.reasons.append("hand_L: made suspect by the test")
+        return q
+
+    monkeypatch.setattr(fit_mod, "assess_fit", first_reads_suspect)
     case = make_realworld(35, "raw")
     assert 150_000 < len(case.V) < 200_000
     path = case.write(tmp_path / "raw-35.ply")
     t = time.process_time()
     _, res, _ = run_fit(path, None, quiet=True)
     cpu = time.process_time() - t
-    assert res.report.quality is not None and res.report.quality.quality != "good"
+    assert len(calls) >= 2  # the retry ran and was assessed
     assert any(n.startswith("quality retries") for n in res.report.notes)
     assert cpu < 11.0, f"markerless fit of a 150 k-vertex scan took {cpu:.1f} s CPU (target 8)"
 
