@@ -28,6 +28,7 @@ from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
     BONE_PRIOR,
     HEAD_PRIOR,
+    LEG_TWIST_PRIOR,
     LIMB_PRIOR,
     arm_pose,
     fit_body_prior,
@@ -166,7 +167,7 @@ ARM_HYPOTHESES = (10.0, 30.0, 50.0)
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
 #: The markerless fit's pose prior (search, first fit, rounds): the arm bones' and the head's.
-MARKERLESS_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR
+MARKERLESS_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles

@@ -154,6 +154,15 @@ BONE_PRIOR: tuple[tuple[str, float, float], ...] = (
 #: 64-107 mm off the truth). 0.03 turned them back only to 28-53° (raw-19 still 73 mm off); 0.1
 #: on the head bone alone left raw-19 at 47° (74 mm); 0.1 on head and neck01: 17-24°, 13-29 mm.
 HEAD_PRIOR: tuple[tuple[str, float, float], ...] = (("neck01", 0.1, 0.1), ("head", 0.1, 0.1))
+#: The markerless fit's prior on the thighs' twist about their own axis (same units, added to
+#: :data:`BONE_PRIOR`): a nearly cylindrical leg's data barely turn it, and the fits of the closed
+#: and the raw delivery of one body twisted the legs 5-18° from the truth, differently.
+#: Measured (``bench.realworld``, 40 cases): correspondence 10.81 -> 10.56 mm, closed-vs-raw twins
+#: 6.5 -> 6.3 mm mean, no verdict changed; held-in ``bench.matching`` 3.44 -> 3.48 mm. 0.3 on
+#: thighs and shins turned raw-4's legs round (correspondence 6.8 -> 24.9 mm).
+LEG_TWIST_PRIOR: tuple[tuple[str, float, float], ...] = (
+    ("upperleg01.L", 0.0, 0.1), ("upperleg01.R", 0.0, 0.1),
+)  # fmt: skip
 
 
 #: Limb chains ``(root, middle, end)`` (rig bones whose heads are the shoulder, elbow and wrist

@@ -32,3 +32,22 @@ def test_scan_points_on_the_fingers_pull_no_palm_vertex() -> None:
     assert np.linalg.norm(V[v] - P, axis=1).max() < 1e-6
     assert not np.isin(v, masked).any()
     assert not (finger_tree.query(P)[0] < 1e-9).any()
+
+
+def test_the_leg_twist_prior_weighs_twist_about_the_thigh_only() -> None:
+    from core.registration.shape_prior import LEG_TWIST_PRIOR, _articulation, _bone_metrics
+    from core.rig import joint_positions
+
+    art = _articulation()
+    V0 = load_template().V
+    metrics = _bone_metrics(art, V0, LEG_TWIST_PRIOR)
+    assert len(metrics) == 2
+    J = joint_positions(V0, rig=art.rig)
+    for a, M in metrics:
+        name = art.names[a]
+        knee = J[art.rig.names.index(name.replace("upperleg01", "lowerleg01"))]
+        axis = knee - J[art.bones[a]]
+        axis /= np.linalg.norm(axis)
+        w, vecs = np.linalg.eigh(M)
+        assert np.allclose(w[:2], 0.0) and w[2] > 0.05  # bending the thigh costs nothing
+        assert abs(vecs[:, 2] @ axis) > 0.95, name  # twisting it about its own axis does
