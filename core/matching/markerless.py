@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.errors import FitError
+from core.geometry import area_samples
 from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
@@ -216,8 +217,6 @@ def band_depth(P: np.ndarray, band: tuple[float, float] = GIRTH_BAND) -> float:
 @cache
 def _template_band_depth() -> float:
     """:func:`band_depth` of the template's surface (60 000 points by area, as a scan has)."""
-    from core.geometry import area_samples
-
     tpl = load_template()
     return band_depth(area_samples(tpl.V, np.asarray(tpl.F, np.int64), 60_000))
 
