@@ -375,6 +375,23 @@ def search_starts(
 #: (``core.synth.scanner_outputs``); closed_lowres-4: 0.882 (a leg on the wrong foot, foot_L
 #: 128 mm off after the fit) vs 0.889 (right).
 TIE_MARGIN = 0.03
+#: The near-tie margin where even the best start matches less than ``min_coverage`` of the
+#: template (a body far from the template's shape: the search's scores are all poor and less
+#: telling). raw-63 of ``bench.realworld --heavy`` (BMI 45, arms 55°): arms 10° scored 1.239
+#: (both arms lost after the fit, 186 mm from the truth), the widened template's arms 30° 1.271
+#: (right: 22 mm).
+POOR_TIE_MARGIN = 0.06
+
+
+def near_tied(starts: list[Start], min_coverage: float) -> list[Start]:
+    """The best start and the second where it scores within the tie margin of it: within
+    :data:`TIE_MARGIN`, or :data:`POOR_TIE_MARGIN` where the best matches less than
+    ``min_coverage`` of the template. ``starts``: best score first (:func:`search_starts`)."""
+    best = starts[0]
+    poor = not np.isfinite(best.coverage) or best.coverage < min_coverage
+    margin = POOR_TIE_MARGIN if poor else TIE_MARGIN
+    return [st for st in starts[:2] if st.score <= best.score + margin]
+
 
 #: Total neck flexions (degrees, + forward; head bone at rest) tried against the search's own head.
 HEAD_FLEXIONS = (0.0, 15.0, 30.0)
@@ -498,8 +515,7 @@ def fit_markerless(
     check_body_shape(scan.V, scan.F, frame=frame)
     index = ScanIndex(scan)
     starts, scores = search_starts(scan, index)
-    tied = [st for st in starts[:2] if st.score <= starts[0].score + TIE_MARGIN]
-    tied = [_head_start(index, st, scores) for st in tied]
+    tied = [_head_start(index, st, scores) for st in near_tied(starts, min_coverage)]
     if tied[0].similarity.R[1, 1] < 0:  # head-down along the up axis read: turn the scan over
         M = turn_over(scan)
         tied = [_turned(st, M) for st in tied if st.similarity.R[1, 1] < 0]

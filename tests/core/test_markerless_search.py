@@ -239,3 +239,25 @@ def test_a_heavy_body_is_searched_with_a_template_of_its_girth(monkeypatch):
     plain, _ = ml.search_starts(scan, index)
     assert plain[0].similarity.R[1, 1] < -0.9, plain[0].label  # head down
     assert plain[0].score > starts[0].score
+
+
+def test_a_poor_best_start_widens_the_near_tie():
+    """Near-tied starts: within TIE_MARGIN of the best; where even the best start matches less
+    than min_coverage of the template (heavy raw-63: arms 10° 1.239, right start 1.271), within
+    POOR_TIE_MARGIN. Never more than two."""
+    from core.geometry import Similarity
+    from core.matching.markerless import POOR_TIE_MARGIN, TIE_MARGIN, Start, near_tied
+
+    def start(score: float, coverage: float, label: str) -> Start:
+        sim = Similarity(1.0, np.eye(3), np.zeros(3))
+        return Start(sim, {}, np.zeros(0), score, coverage, label)
+
+    gap = (TIE_MARGIN + POOR_TIE_MARGIN) / 2  # beyond the usual margin, within the poor one
+    good = [start(1.0, 0.6, "a"), start(1.0 + gap, 0.5, "b"), start(1.0 + gap, 0.5, "c")]
+    poor = [start(1.2, 0.35, "a"), start(1.2 + gap, 0.3, "b"), start(1.2 + gap, 0.3, "c")]
+    assert [s.label for s in near_tied(good, 0.4)] == ["a"]
+    assert [s.label for s in near_tied(poor, 0.4)] == ["a", "b"]
+    far = [poor[0], start(1.2 + POOR_TIE_MARGIN * 1.5, 0.3, "b")]
+    assert [s.label for s in near_tied(far, 0.4)] == ["a"]
+    close = [good[0], start(1.0 + TIE_MARGIN / 2, 0.5, "b")]
+    assert [s.label for s in near_tied(close, 0.4)] == ["a", "b"]
