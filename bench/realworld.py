@@ -223,6 +223,10 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
         row["quality"] = q.quality
         row["quality_reasons"] = list(q.reasons)
         row["part_quality"] = {k: p.quality for k, p in q.parts.items()}
+        row["part_figures"] = {  # every quality figure, for calibrating the thresholds
+            k: {f: v for f, v in vars(p).items() if f != "quality" and v == v}
+            for k, p in q.parts.items()
+        }
     row["warnings"] = list(rep.warnings)
     row["notes"] = list(rep.notes)
     row["frame"] = info["frame"]

@@ -308,6 +308,9 @@ class PartQualityOut(BaseModel):
     leg_proportion: float | None = Field(
         None, description="legs: inseam per trunk length over the template's, max(r, 1/r)"
     )
+    arm_symmetry: float | None = Field(
+        None, description="arms: the left arm's length over the right's, max(r, 1/r)"
+    )
 
 
 class FitQualityOut(BaseModel):
