@@ -311,6 +311,9 @@ class PartQualityOut(BaseModel):
     arm_symmetry: float | None = Field(
         None, description="arms: the left arm's length over the right's, max(r, 1/r)"
     )
+    foot_turn_deg: float | None = Field(
+        None, description="feet: heel->toe direction against the torso's forward (deg)"
+    )
 
 
 class FitQualityOut(BaseModel):

@@ -92,6 +92,13 @@ Per part (all distances metres):
   ``bench.realworld`` markerless fits (96d164e) 1.000-1.080 (arms and hands ≤ 34 mm off), the
   20 heavy ones 1.001-1.038 where arms and hands are ≤ 39 mm off and 1.14-1.18 where a hand is
   66-124 mm off (raw-63, closed_lowres-102, raw-102).
+- ``foot_turn_deg`` (feet only): the angle about the torso's vertical axis between the foot's
+  heel → toe direction and the template's, in the torso's frame (:func:`foot_turn`). A foot
+  turned about the ankle keeps its leg in place: markerless closed_lowres-4 of
+  ``core.synth.scanner_outputs`` meshed on a 17 mm grid (8 k vertices, feet 2 cm apart) turned
+  its left foot 100° inwards (135 mm off the truth's) and read `suspect` only from the feet's
+  unexplained data. Standing people point their feet forward, each turned out by up to ~30°;
+  the generator's truths read ≤ 7°, the 40 ``bench.realworld`` markerless fits (4cf7dbc) ≤ 3°.
 
 Thresholds (``THRESHOLDS``; calibrated on simulated scans ``bench.cases`` and on deliberately
 broken copies of good fits — a part moved by 3-15 cm or collapsed towards its joint; see
@@ -112,6 +119,7 @@ head turn               > 32°        > 36°
 head distortion         > 14 mm      > 18 mm
 leg proportion          > 1.30       > 1.45
 arm symmetry            > 1.10       > 1.13
+foot turn               > 45°        > 60°
 ======================  ===========  ==========
 
 and a part is also ``failed`` when scan data around it is unexplained (scan→fit p95 > 25 mm)
@@ -195,6 +203,7 @@ THRESHOLDS: dict[str, Threshold] = {
     "head_distortion_m": Threshold(0.014, 0.018),
     "leg_proportion": Threshold(1.30, 1.45),
     "arm_symmetry": Threshold(1.10, 1.13),
+    "foot_turn_deg": Threshold(45.0, 60.0),
 }
 #: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
 HAND_FIGURES = ("data_beyond_m", "hand_bend_deg", "hand_proportion", "hand_tip_gap_m")
@@ -205,6 +214,7 @@ PART_FIGURES = {
     "head_distortion_m": ("head",),
     "leg_proportion": ("leg_L", "leg_R"),
     "arm_symmetry": ("arm_L", "arm_R"),
+    "foot_turn_deg": ("foot_L", "foot_R"),
 }
 UNSCALED = tuple(PART_FIGURES)
 BEYOND_MIN_POINTS = 20
@@ -235,6 +245,7 @@ class PartQuality:
     head_distortion_m: float = float("nan")
     leg_proportion: float = float("nan")
     arm_symmetry: float = float("nan")
+    foot_turn_deg: float = float("nan")
 
 
 @dataclass
@@ -342,6 +353,11 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
             reasons.append(
                 f"{part}: the arms' lengths differ {v:.2f}× (an arm stretched or shortened "
                 "along its data, its hand misplaced?)"
+            )
+        elif key == "foot_turn_deg":
+            reasons.append(
+                f"{part}: turned {v:.0f}° from the body's forward direction (a standing person's "
+                "feet point forward; foot fitted on the other foot's or the floor's data?)"
             )
         elif key == "scan_to_fit_p95_m":
             reasons.append(f"{part}: scan→fit p95 {v * 1000:.0f} mm")
@@ -468,6 +484,39 @@ def head_figures(X: np.ndarray, template: Template | None = None) -> tuple[float
 def head_turn(X: np.ndarray, template: Template | None = None) -> float:
     """``head_turn_deg`` of the body ``X`` (13380, 3), degrees (:func:`head_figures`)."""
     return head_figures(X, template)[0]
+
+
+#: Share of the template foot's length (heel → toe, along its axis) whose vertices make the heel
+#: and the toe ends of :func:`foot_turn`.
+FOOT_END_SHARE = 0.2
+
+
+def foot_turn(X: np.ndarray, side: str, template: Template | None = None) -> float:
+    """``foot_turn_deg`` of foot ``side`` (``"L"``/``"R"``) of the body ``X`` (13380, 3): the
+    angle, degrees in [0, 180], about the torso's vertical axis between the foot's heel → toe
+    direction and the template's own, in the torso's frame (the least-squares similarity taking
+    the template's torso onto the body's, area-weighted as in :func:`head_figures`). Heel and toe
+    are the centroids of the back and front :data:`FOOT_END_SHARE` of the template foot's
+    vertices (a marker convention moving one landmark vertex does not move them)."""
+    tpl = template or load_template()
+    X = np.asarray(X, dtype=np.float64)
+    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
+    torso = tpl.part_mask("torso")
+    R = umeyama(tpl.V[torso], X[torso], areas[torso]).R
+    foot = np.flatnonzero(tpl.part_mask(f"foot_{side}"))
+    L = tpl.landmarks
+    axis = tpl.V[L[f"Toe_tip_{side}"]] - tpl.V[L[f"Calcaneus_posterior_{side}"]]
+    axis[1] = 0.0
+    t = tpl.V[foot] @ (axis / np.linalg.norm(axis))
+    lo, hi = np.quantile(t, [FOOT_END_SHARE, 1.0 - FOOT_END_SHARE])
+    heel, toe = foot[t <= lo], foot[t >= hi]
+
+    def yaw(V: np.ndarray) -> float:
+        d = V[toe].mean(axis=0) - V[heel].mean(axis=0)
+        return float(np.degrees(np.arctan2(d[0], d[2])))
+
+    a = yaw(X @ R) - yaw(tpl.V)  # X @ R: the body in the torso's frame (rotation undone)
+    return float(abs((a + 180.0) % 360.0 - 180.0))
 
 
 def arm_symmetry(X: np.ndarray, template: Template | None = None) -> float:
@@ -622,6 +671,8 @@ def assess_fit(
             figures["leg_proportion"] = leg_proportion(X, name[-1], tpl)
         elif name.startswith("arm_"):
             figures["arm_symmetry"] = arm_symmetry(X, tpl)
+        elif name.startswith("foot_"):
+            figures["foot_turn_deg"] = foot_turn(X, name[-1], tpl)
         pv, pr = _judge(name, figures)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
@@ -659,6 +710,7 @@ def assess_fit(
             head_distortion_m=figures["head_distortion_m"],
             leg_proportion=figures["leg_proportion"],
             arm_symmetry=figures["arm_symmetry"],
+            foot_turn_deg=figures["foot_turn_deg"],
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:
