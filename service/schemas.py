@@ -314,6 +314,10 @@ class PartQualityOut(BaseModel):
     foot_turn_deg: float | None = Field(
         None, description="feet: heel->toe direction against the torso's forward (deg)"
     )
+    feet_apart_m: float | None = Field(
+        None,
+        description="feet: left foot's centre left of the right's, torso frame (m; < 0 crossed)",
+    )
 
 
 class FitQualityOut(BaseModel):

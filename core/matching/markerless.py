@@ -28,6 +28,7 @@ from core.registration.quality import hand_tip_gap
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
     BONE_PRIOR,
+    FOOT_PRIOR,
     HEAD_PRIOR,
     LEG_TWIST_PRIOR,
     LIMB_PRIOR,
@@ -168,7 +169,11 @@ ARM_HYPOTHESES = (10.0, 30.0, 50.0)
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
 #: The markerless fit's pose prior (search, first fit, rounds): the arm bones' and the head's.
-MARKERLESS_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
+SEARCH_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
+#: The shape-space fits' bone prior: the search's and the feet's (:data:`FOOT_PRIOR`; in the
+#: search's short fits it changed which start won on heavy bodies: ``bench.realworld --heavy``
+#: raw-63 and raw-102 lost both arms).
+MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
@@ -328,7 +333,7 @@ def search_starts(
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
             point_weight=SEARCH_POINT_WEIGHT, limb_prior=LIMB_PRIOR,
-            bone_prior=MARKERLESS_BONE_PRIOR,
+            bone_prior=SEARCH_BONE_PRIOR,
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []

@@ -99,6 +99,12 @@ Per part (all distances metres):
   its left foot 100° inwards (135 mm off the truth's) and read `suspect` only from the feet's
   unexplained data. Standing people point their feet forward, each turned out by up to ~30°;
   the generator's truths read ≤ 7°, the 40 ``bench.realworld`` markerless fits (4cf7dbc) ≤ 3°.
+- ``feet_apart_m`` (feet only, the same on both): how far the left foot's centroid lies to the
+  body's left of the right foot's, in the torso's frame (:func:`feet_apart`). Legs crossed, each
+  foot fitted on the other's data, keep every foot figure in range: markerless ``bench.realworld
+  --heavy`` raw-59 (BMI 47; feet 139-162 mm off the truth's, pointing forward) read `suspect`
+  from the legs' unexplained data only, -0.15 m here (the truth +0.15). Nobody is scanned with
+  crossed legs; feet together read about a foot's width.
 
 Thresholds (``THRESHOLDS``; calibrated on simulated scans ``bench.cases`` and on deliberately
 broken copies of good fits — a part moved by 3-15 cm or collapsed towards its joint; see
@@ -120,6 +126,7 @@ head distortion         > 14 mm      > 18 mm
 leg proportion          > 1.30       > 1.45
 arm symmetry            > 1.10       > 1.13
 foot turn               > 45°        > 60°
+feet apart              < 30 mm      < 0 mm
 ======================  ===========  ==========
 
 and a part is also ``failed`` when scan data around it is unexplained (scan→fit p95 > 25 mm)
@@ -204,6 +211,7 @@ THRESHOLDS: dict[str, Threshold] = {
     "leg_proportion": Threshold(1.30, 1.45),
     "arm_symmetry": Threshold(1.10, 1.13),
     "foot_turn_deg": Threshold(45.0, 60.0),
+    "feet_apart_m": Threshold(0.03, 0.0, higher_is_worse=False),
 }
 #: figures whose limits already are the hands' own (not scaled by ``EXTREMITY_FACTOR``)
 HAND_FIGURES = ("data_beyond_m", "hand_bend_deg", "hand_proportion", "hand_tip_gap_m")
@@ -215,6 +223,7 @@ PART_FIGURES = {
     "leg_proportion": ("leg_L", "leg_R"),
     "arm_symmetry": ("arm_L", "arm_R"),
     "foot_turn_deg": ("foot_L", "foot_R"),
+    "feet_apart_m": ("foot_L", "foot_R"),
 }
 UNSCALED = tuple(PART_FIGURES)
 BEYOND_MIN_POINTS = 20
@@ -246,6 +255,7 @@ class PartQuality:
     leg_proportion: float = float("nan")
     arm_symmetry: float = float("nan")
     foot_turn_deg: float = float("nan")
+    feet_apart_m: float = float("nan")
 
 
 @dataclass
@@ -358,6 +368,11 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str]]:
             reasons.append(
                 f"{part}: turned {v:.0f}° from the body's forward direction (a standing person's "
                 "feet point forward; foot fitted on the other foot's or the floor's data?)"
+            )
+        elif key == "feet_apart_m":
+            reasons.append(
+                f"{part}: the left foot's centre is {v * 1000:.0f} mm left of the right foot's "
+                "(legs crossed: each foot fitted on the other's data?)"
             )
         elif key == "scan_to_fit_p95_m":
             reasons.append(f"{part}: scan→fit p95 {v * 1000:.0f} mm")
@@ -491,6 +506,24 @@ def head_turn(X: np.ndarray, template: Template | None = None) -> float:
 FOOT_END_SHARE = 0.2
 
 
+def _torso_rotation(X: np.ndarray, tpl: Template) -> np.ndarray:
+    """(3, 3) rotation of the least-squares similarity taking the template's torso onto the
+    body ``X``'s (area-weighted, as in :func:`head_figures`)."""
+    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
+    torso = tpl.part_mask("torso")
+    return umeyama(tpl.V[torso], X[torso], areas[torso]).R
+
+
+def feet_apart(X: np.ndarray, template: Template | None = None) -> float:
+    """``feet_apart_m`` of the body ``X`` (13380, 3): how far (metres) the left foot's centroid
+    lies to the body's left of the right foot's, in the torso's frame (negative: the legs are
+    crossed). The template's (legs apart in its rest pose) read 0.46 m."""
+    tpl = template or load_template()
+    X = np.asarray(X, dtype=np.float64) @ _torso_rotation(X, tpl)  # the torso's frame
+    d = X[tpl.part_mask("foot_L")].mean(axis=0) - X[tpl.part_mask("foot_R")].mean(axis=0)
+    return float(d[0])  # the template's left is +x
+
+
 def foot_turn(X: np.ndarray, side: str, template: Template | None = None) -> float:
     """``foot_turn_deg`` of foot ``side`` (``"L"``/``"R"``) of the body ``X`` (13380, 3): the
     angle, degrees in [0, 180], about the torso's vertical axis between the foot's heel → toe
@@ -500,9 +533,7 @@ def foot_turn(X: np.ndarray, side: str, template: Template | None = None) -> flo
     vertices (a marker convention moving one landmark vertex does not move them)."""
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
-    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
-    torso = tpl.part_mask("torso")
-    R = umeyama(tpl.V[torso], X[torso], areas[torso]).R
+    R = _torso_rotation(X, tpl)
     foot = np.flatnonzero(tpl.part_mask(f"foot_{side}"))
     L = tpl.landmarks
     axis = tpl.V[L[f"Toe_tip_{side}"]] - tpl.V[L[f"Calcaneus_posterior_{side}"]]
@@ -673,6 +704,7 @@ def assess_fit(
             figures["arm_symmetry"] = arm_symmetry(X, tpl)
         elif name.startswith("foot_"):
             figures["foot_turn_deg"] = foot_turn(X, name[-1], tpl)
+            figures["feet_apart_m"] = feet_apart(X, tpl)
         pv, pr = _judge(name, figures)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
@@ -711,6 +743,7 @@ def assess_fit(
             leg_proportion=figures["leg_proportion"],
             arm_symmetry=figures["arm_symmetry"],
             foot_turn_deg=figures["foot_turn_deg"],
+            feet_apart_m=figures["feet_apart_m"],
         )
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:

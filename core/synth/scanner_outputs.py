@@ -598,14 +598,18 @@ def _tf(A: np.ndarray, X: np.ndarray) -> np.ndarray:
     return X @ A[:3, :3].T + A[:3, 3]
 
 
-def make_case(seed: int, kind: str | None = None, *, hair: str | None = None) -> RealWorldCase:
+def make_case(
+    seed: int, kind: str | None = None, *, hair: str | None = None, voxel_m: float | None = None
+) -> RealWorldCase:
     """Build a real-world-like case (deterministic in ``seed``, ``kind`` and ``hair``).
 
     The body and its posture depend on ``seed`` only (``closed_touching`` lowers the arms until
     they touch), so ``make_case(s, "closed_lowres")`` and ``make_case(s, "raw")`` show the same
     body. ``kind`` None draws one of :data:`KINDS` from the seed. ``hair`` (one of
     :data:`HAIR_STYLES`, raw kinds only: raw, raw_inward, raw_clutter, cloud) scans the body
-    with that hair on its head (default None: the cases as they always were).
+    with that hair on its head (default None: the cases as they always were). ``voxel_m``
+    (closed kinds only): mesh on this grid (metres) instead of the kind's drawn one (e.g. 0.017:
+    ~8 k vertices, where close feet fuse).
     """
     kinds = sorted(KINDS)
     if kind is None:
@@ -614,6 +618,8 @@ def make_case(seed: int, kind: str | None = None, *, hair: str | None = None) ->
         raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
     if hair is not None and (kind.startswith("closed") or kind == "dense"):
         raise ValueError(f"hair= is for the raw kinds; {kind} has its own (closed_hair) or none")
+    if voxel_m is not None and not (kind.startswith("closed") and 0.002 <= voxel_m <= 0.03):
+        raise ValueError(f"voxel_m is for the closed kinds, 0.002-0.03 m; got {voxel_m} ({kind})")
     if hair is not None and hair not in HAIR_STYLES:
         raise ValueError(f"hair must be one of {HAIR_STYLES}, got {hair!r}")
     tpl = load_template()
@@ -628,6 +634,7 @@ def make_case(seed: int, kind: str | None = None, *, hair: str | None = None) ->
     if kind.startswith("closed"):
         lowres = kind == "closed_lowres"
         h = float(rng.uniform(0.010, 0.014) if lowres else rng.uniform(0.005, 0.007))
+        h = h if voxel_m is None else float(voxel_m)
         hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
         floor = "plate" if kind == "closed_plate" else "cut"
         X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=float(rng.uniform(0.010, 0.014)),

@@ -434,3 +434,22 @@ def test_foot_turned_off_forward_is_not_good_naming_the_foot(case, fitted, deg, 
     assert rank.index(q.parts["foot_L"].quality) >= rank.index(level), q.reasons
     assert q.parts["foot_R"].quality == "good", q.reasons
     assert any(r.startswith("foot_L: turned") for r in q.reasons), q.reasons
+
+
+def test_legs_crossed_onto_each_others_feet_fail_naming_the_feet(case, fitted):
+    # bench.realworld --heavy raw-59 (BMI 47): the legs crossed, each foot on the other's data
+    # (feet 139-162 mm off the truth's, pointing forward, scan->fit p95 7-24 mm): `suspect` from
+    # the legs' unexplained data only; its feet read -0.15 m apart, the truth's +0.15. Here the
+    # feet swap places (each moved by the other's centroid offset), the legs stay
+    tpl = load_template()
+    X = fitted.vertices.copy()
+    fl, fr = tpl.part_mask("foot_L"), tpl.part_mask("foot_R")
+    d = X[fl].mean(axis=0) - X[fr].mean(axis=0)
+    d[1] = 0.0
+    X[fl] -= d
+    X[fr] += d
+    q = assess_fit(case.scan, X)
+    assert fitted.report.quality.parts["foot_L"].feet_apart_m > 0.1
+    assert q.parts["foot_L"].feet_apart_m < -0.1
+    assert q.parts["foot_L"].quality == q.parts["foot_R"].quality == "failed", q.reasons
+    assert any(r.startswith("foot_L: the left foot's centre is") for r in q.reasons), q.reasons
