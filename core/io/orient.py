@@ -69,7 +69,7 @@ def _patches_and_relative_signs(
     lo, hi = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()
     n = int(F.max()) + 1
     key = lo * n + hi
-    order = np.argsort(key, kind="stable")
+    order = np.argsort(key)  # equal keys need no order: a group is used as a whole
     ks = key[order]
     start = np.empty(len(ks), bool)
     start[0] = True
