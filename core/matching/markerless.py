@@ -168,7 +168,7 @@ def _template_toes() -> np.ndarray:
 ARM_HYPOTHESES = (10.0, 30.0, 50.0)
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
-#: The markerless fit's pose prior (search, first fit, rounds): the arm bones' and the head's.
+#: The markerless search's pose prior: the arm bones', the head's and the thighs' twist.
 SEARCH_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
 #: The shape-space fits' bone prior: the search's and the feet's (:data:`FOOT_PRIOR`; in the
 #: search's short fits it changed which start won on heavy bodies: ``bench.realworld --heavy``

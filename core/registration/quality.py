@@ -488,10 +488,11 @@ def head_figures(X: np.ndarray, template: Template | None = None) -> tuple[float
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
     areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
-    head, torso = tpl.part_mask("head"), tpl.part_mask("torso")
+    head = tpl.part_mask("head")
     head_sim = umeyama(tpl.V[head], X[head], areas[head])
-    torso_sim = umeyama(tpl.V[torso], X[torso], areas[torso])
-    turn = float(np.degrees(Rotation.from_matrix(torso_sim.R.T @ head_sim.R).magnitude()))
+    turn = float(
+        np.degrees(Rotation.from_matrix(_torso_rotation(X, tpl).T @ head_sim.R).magnitude())
+    )
     r = X[head] - head_sim.apply(tpl.V[head])
     return turn, float(np.sqrt(np.average(np.sum(r**2, axis=1), weights=areas[head])))
 
@@ -514,26 +515,36 @@ def _torso_rotation(X: np.ndarray, tpl: Template) -> np.ndarray:
     return umeyama(tpl.V[torso], X[torso], areas[torso]).R
 
 
-def feet_apart(X: np.ndarray, template: Template | None = None) -> float:
+def feet_apart(
+    X: np.ndarray, template: Template | None = None, torso_R: np.ndarray | None = None
+) -> float:
     """``feet_apart_m`` of the body ``X`` (13380, 3): how far (metres) the left foot's centroid
     lies to the body's left of the right foot's, in the torso's frame (negative: the legs are
-    crossed). The template's (legs apart in its rest pose) read 0.46 m."""
+    crossed). The template's (legs apart in its rest pose) read 0.46 m. ``torso_R``: the
+    torso's rotation (:func:`_torso_rotation`) if already known."""
     tpl = template or load_template()
-    X = np.asarray(X, dtype=np.float64) @ _torso_rotation(X, tpl)  # the torso's frame
+    X = np.asarray(X, dtype=np.float64)
+    X = X @ (_torso_rotation(X, tpl) if torso_R is None else torso_R)  # the torso's frame
     d = X[tpl.part_mask("foot_L")].mean(axis=0) - X[tpl.part_mask("foot_R")].mean(axis=0)
     return float(d[0])  # the template's left is +x
 
 
-def foot_turn(X: np.ndarray, side: str, template: Template | None = None) -> float:
+def foot_turn(
+    X: np.ndarray,
+    side: str,
+    template: Template | None = None,
+    torso_R: np.ndarray | None = None,
+) -> float:
     """``foot_turn_deg`` of foot ``side`` (``"L"``/``"R"``) of the body ``X`` (13380, 3): the
     angle, degrees in [0, 180], about the torso's vertical axis between the foot's heel → toe
     direction and the template's own, in the torso's frame (the least-squares similarity taking
     the template's torso onto the body's, area-weighted as in :func:`head_figures`). Heel and toe
     are the centroids of the back and front :data:`FOOT_END_SHARE` of the template foot's
-    vertices (a marker convention moving one landmark vertex does not move them)."""
+    vertices (a marker convention moving one landmark vertex does not move them). ``torso_R``:
+    as for :func:`feet_apart`."""
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
-    R = _torso_rotation(X, tpl)
+    R = _torso_rotation(X, tpl) if torso_R is None else torso_R
     foot = np.flatnonzero(tpl.part_mask(f"foot_{side}"))
     L = tpl.landmarks
     axis = tpl.V[L[f"Toe_tip_{side}"]] - tpl.V[L[f"Calcaneus_posterior_{side}"]]
@@ -672,6 +683,9 @@ def assess_fit(
     reasons: list[str] = []
     rank = {"good": 0, "suspect": 1, "failed": 2}
     verdict: Verdict = "good"
+    # figures of the whole body, the same on both sides: once
+    torso_R = _torso_rotation(X, tpl)
+    arm_sym, apart = arm_symmetry(X, tpl), feet_apart(X, tpl, torso_R)
     for i, name in enumerate(names):
         own = (labels == i) & captured
         sel = p_part == i
@@ -701,10 +715,10 @@ def assess_fit(
         elif name.startswith("leg_"):
             figures["leg_proportion"] = leg_proportion(X, name[-1], tpl)
         elif name.startswith("arm_"):
-            figures["arm_symmetry"] = arm_symmetry(X, tpl)
+            figures["arm_symmetry"] = arm_sym
         elif name.startswith("foot_"):
-            figures["foot_turn_deg"] = foot_turn(X, name[-1], tpl)
-            figures["feet_apart_m"] = feet_apart(X, tpl)
+            figures["foot_turn_deg"] = foot_turn(X, name[-1], tpl, torso_R)
+            figures["feet_apart_m"] = apart
         pv, pr = _judge(name, figures)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
