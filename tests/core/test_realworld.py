@@ -266,3 +266,12 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     cases = benchmark_cases(40)
     assert len(cases) == 40 and len(set(cases)) == 40
     assert {k for _, k in cases} == set(KINDS)
+
+
+def test_voxel_m_is_for_closed_kinds_within_its_range():
+    from core.synth.scanner_outputs import make_case
+
+    with pytest.raises(ValueError, match="closed kinds"):
+        make_case(4, "raw", voxel_m=0.017)
+    with pytest.raises(ValueError, match="closed kinds"):
+        make_case(4, "closed_lowres", voxel_m=0.5)
