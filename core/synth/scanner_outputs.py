@@ -23,6 +23,11 @@ Decisions
 - **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
   opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
   back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``.
+- **Booth meshes** (``closed_booth``, :func:`booth_cases`): issue 12's real subjects all at once:
+  a closed mesh regridded once to a drawn 10–15 k vertices, mm, +Y up, hair drawn from none and
+  :data:`HAIR_STYLES`, arms fused to the torso in 40 %, a floor plate in 20 %, any BMI (heavy
+  bodies included). Seeds 300 on; the kind's randomness has its own stream (the other kinds'
+  cases are unchanged by it).
 - **Raw scans** come from :func:`core.synth.scanner.simulate_scan` of the off-model body
   (6 views, 4 mm pitch, 1 mm noise); ``make_case(..., hair=style)`` scans it with a hair solid's
   surface (:func:`hair_mesh`, 4 mm marching cubes) on the head, the scalp under it hidden.
@@ -71,7 +76,16 @@ KINDS = {
     "raw_clutter": "raw scan with stray blobs and floor points",
     "cloud": "point cloud of a raw scan, no normals",
     "dense": "dense point cloud, 1-3 M points, no normals",
+    "closed_booth": "closed booth-software mesh (as issue 12's subjects), 10-15 k vertices, "
+    "mm, +Y up, hair drawn (none, bun, ponytail, cap), arms touching the torso in 40 %",
 }
+
+#: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
+#: fixed, so that a kind added later leaves every earlier case as it was.
+_SEED_ORDER = (
+    "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
+    "raw_clutter", "raw_inward", "closed_booth",
+)  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
 SUBSET_33 = (
@@ -611,11 +625,11 @@ def make_case(
     (closed kinds only): mesh on this grid (metres) instead of the kind's drawn one (e.g. 0.017:
     ~8 k vertices, where close feet fuse).
     """
-    kinds = sorted(KINDS)
+    kinds = list(_SEED_ORDER)
     if kind is None:
-        kind = kinds[int(np.random.default_rng([seed, 100]).integers(len(kinds)))]
+        kind = kinds[int(np.random.default_rng([seed, 100]).integers(9))]  # the first nine
     if kind not in KINDS:
-        raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+        raise ValueError(f"kind must be one of {', '.join(sorted(kinds))}, got {kind!r}")
     if hair is not None and (kind.startswith("closed") or kind == "dense"):
         raise ValueError(f"hair= is for the raw kinds; {kind} has its own (closed_hair) or none")
     if voxel_m is not None and not (kind.startswith("closed") and 0.002 <= voxel_m <= 0.03):
@@ -625,20 +639,30 @@ def make_case(
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
     body = off_model_body(np.random.default_rng([seed, 101]))
-    touching = kind == "closed_touching"
+    booth = kind == "closed_booth"
+    brng = np.random.default_rng([seed, 105])  # the booth subject's protocol
+    touching = kind == "closed_touching" or (booth and brng.random() < 0.4)
     P, pose = posture(body.V, np.random.default_rng([seed, 102]), touching=touching)
     rng = np.random.default_rng([seed, 103, kinds.index(kind)])
     out: dict = {}
     normals = None
     F: np.ndarray | None
     if kind.startswith("closed"):
-        lowres = kind == "closed_lowres"
+        lowres = kind in ("closed_lowres", "closed_booth")
         h = float(rng.uniform(0.010, 0.014) if lowres else rng.uniform(0.005, 0.007))
         h = h if voxel_m is None else float(voxel_m)
         hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
-        floor = "plate" if kind == "closed_plate" else "cut"
-        X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=float(rng.uniform(0.010, 0.014)),
-                                hair=hair, floor=floor)  # fmt: skip
+        if booth:
+            hair = [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
+        floor = "plate" if kind == "closed_plate" or (booth and brng.random() < 0.2) else "cut"
+        mitten = float(rng.uniform(0.010, 0.014))
+        X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=mitten, hair=hair, floor=floor)
+        if booth and voxel_m is None:  # decimated to the drawn 10-15 k vertices: regrid once
+            want = float(brng.uniform(10_000, 15_000))
+            if not 0.9 * want < len(X) < 1.1 * want:
+                h = float(np.clip(h * np.sqrt(len(X) / want), 0.008, 0.02))
+                X, F, out = closed_mesh(P, F_t, np.random.default_rng([seed, 106]), voxel_m=h,
+                                        mitten_m=mitten, hair=hair, floor=floor)  # fmt: skip
         P = P + np.array([0.0, out.get("floor_shift_m", 0.0), 0.0])  # the truth stands on a plate
         normals = vertex_normals(X, F) if rng.random() < 0.5 else None
     elif kind == "dense":
@@ -667,7 +691,7 @@ def make_case(
         elif kind == "cloud":
             F, normals = None, None
     # frame
-    if kind == "closed_lowres":
+    if kind in ("closed_lowres", "closed_booth"):
         units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
     else:
         units = str(rng.choice(list(UNITS)))
@@ -710,7 +734,7 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    base = [k for k in sorted(KINDS) if k != "dense"]
+    base = [k for k in sorted(KINDS) if k not in ("dense", "closed_booth")]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:
@@ -743,12 +767,20 @@ def heavy_cases(n: int = 20, start: int = 32) -> list[tuple[int, str]]:
     return out[:n]
 
 
+def booth_cases(n: int = 40, start: int = 300) -> list[tuple[int, str]]:
+    """``n`` ``closed_booth`` cases, seeds ``start`` on (clear of the other sets): issue 12's
+    booth-software meshes of real subjects (10-15 k vertices, hair, touching arms, heavy bodies:
+    the off-model bodies' own BMI spread, 15-55)."""
+    return [(s, "closed_booth") for s in range(start, start + n)]
+
+
 __all__ = [
     "HAIR_STYLES",
     "KINDS",
     "SUBSET_33",
     "RealWorldCase",
     "benchmark_cases",
+    "booth_cases",
     "closed_mesh",
     "clutter",
     "file_transform",
