@@ -299,6 +299,11 @@ class PartQualityOut(BaseModel):
     hand_tip_gap_m: float | None = Field(
         None, description="hands: median distance of the fitted fingertips to the scan (m)"
     )
+    hand_body_gap_m: float | None = Field(
+        None,
+        description="hands: 5th percentile distance of the hand to the fitted torso and thighs "
+        "(m); a hand resting on the body cannot be told from it in a closed mesh",
+    )
     head_turn_deg: float | None = Field(
         None, description="head: rotation of the head against the torso from the template's (deg)"
     )
@@ -333,6 +338,11 @@ class FitQualityOut(BaseModel):
     )
     thresholds: dict[str, dict[str, float | None]] = Field(
         default_factory=dict, description="figure -> suspect / failed limits (null: never)"
+    )
+    unresolved: list[str] = Field(
+        default_factory=list,
+        description="parts suspect only because the scan cannot place them (a hand resting on "
+        "the body): refitting would not help; their place is a guess",
     )
 
 

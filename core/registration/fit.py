@@ -758,7 +758,9 @@ def fit(
     still lost stays in the verdict with its name. ``retries``: the retries to try (a subset of
     :data:`RETRIES`, in its order; the markerless fit keeps only those its own landmarks do not
     undo, :data:`core.matching.markerless.MARKERLESS_RETRIES`). Without ``assess`` (see
-    :func:`iter_fit`) there is no quality check and so no retry.
+    :func:`iter_fit`) there is no quality check and so no retry; nor is there one for parts
+    the scan cannot place (:attr:`core.registration.quality.FitQuality.unresolved`: a hand
+    resting on the body), only for :meth:`~core.registration.quality.FitQuality.weak_parts`.
     """
     options: dict[str, Any] = {
         "schedule": schedule, "template": template, "max_distance": max_distance,
@@ -772,7 +774,7 @@ def fit(
     options["index"] = _scan_index(scan, index, confidence_full_at)  # shared by the retries
     res = _run(scan, markers, callback, options)
     q = res.report.quality
-    if not retry or q is None or q.quality == "good" or not shape_prior:
+    if not retry or q is None or not q.weak_parts() or not shape_prior:
         return res
     attempts = [f"first fit: {q.quality}"]
     best = res
@@ -780,9 +782,9 @@ def fit(
     for name, opt in retries:
         bq = best.report.quality
         assert bq is not None
-        if bq.quality == "good":
+        weak = bq.weak_parts()  # a hand resting on the body (unresolved) calls for no retry
+        if not weak:
             break
-        weak = [p for p, pq in bq.parts.items() if pq.quality != "good"]
         o = dict(options)
         po = replace(PriorOptions.of(o.get("prior_options")), initial_pose=start)
         o["prior_options"] = po
