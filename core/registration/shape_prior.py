@@ -26,7 +26,7 @@ import copy
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -187,6 +187,25 @@ FIST_CURL_DEG = 70.0
 #: of one data row (100-10 000 give the same arms on raw-16/28 and closed_lowres-24; markers
 #: place the elbows of a marker fit, whose default is 0).
 LIMB_PRIOR = 100.0
+#: Plausible rest lengths of the arm's bones per stature (joint to joint: ``upperarm01`` →
+#: ``lowerarm01`` → ``wrist``; stature: the rest body's height), ``{bone: (low, high)}``. ANSUR
+#: II (dev split) reads forearm (radiale–stylion) / stature 0.129–0.176 in all 4 082 soldiers
+#: (mean 0.150, ±4 % SD) and upper arm (acromion–radiale, from the acromion above the joint)
+#: 0.171–0.214; the off-model bodies of ``core.synth.realworld`` (bones ±7 %), joint to joint,
+#: 0.138–0.169 and 0.126–0.162. The bands hold all of them with a margin.
+ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
+    "upperarm01": (0.125, 0.185), "lowerarm01": (0.115, 0.170),
+}  # fmt: skip
+#: Weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) of the markerless fit's arm
+#: length prior (``fit_body_prior(arm_length_prior=)``): a bone's rest length beyond its
+#: :data:`ARM_BONE_RATIOS` band of the stature, and the left and right bones' difference (the
+#: arms of one body are alike within ~2 %). Measured (``bench.realworld``, on 6a498d7):
+#: booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 -> 46.7), closed_booth-339's hands
+#: 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy 20 22.54 -> 22.75 (raw-102's
+#: lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off, the heavy set's chaos);
+#: held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It bounds, it does not place: a
+#: hand fused to the thigh still lands 5-10 cm off (the quality check says so).
+ARM_LENGTH_PRIOR = 100.0
 
 
 def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
@@ -236,6 +255,7 @@ class PriorOptions:
     basis: ShapeBasis | None = None
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
     limb_prior: float = 0.0
+    arm_length_prior: float = 0.0
     fists: str = ""
     floor_y: float | None = None
 
@@ -470,6 +490,54 @@ def _limb_rows(V0: np.ndarray, U: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.
     return np.array(G), np.array(g0)
 
 
+def _arm_length_terms(V0: np.ndarray, U: np.ndarray, rig: Rig) -> dict[str, Any]:
+    """What :func:`_arm_length_rows` needs: per arm joint (``upperarm01``, ``lowerarm01``,
+    ``wrist`` of each side) its rest position as ``p0 (3,) + G (3, k) @ c``; the stature as
+    ``s0 + gs (k,) @ c`` (the rest body's highest vertex over its lowest)."""
+    idx, w = rig.head_reg_idx, rig.head_reg_w
+    joints = {}
+    for side in "LR":
+        for name in ("upperarm01", "lowerarm01", "wrist"):
+            j = rig.index(f"{name}.{side}")
+            joints[f"{name}.{side}"] = (w[j] @ V0[idx[j]], np.einsum("q,qck->ck", w[j], U[idx[j]]))
+    top, bottom = int(np.argmax(V0[:, 1])), int(np.argmin(V0[:, 1]))
+    return {
+        "joints": joints,
+        "s0": float(V0[top, 1] - V0[bottom, 1]),
+        "gs": U[top, 1] - U[bottom, 1],
+    }
+
+
+def _arm_length_rows(terms: dict[str, Any], c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual rows (metres) of the arm length prior at shape ``c`` (k,), linearised:
+    Jacobian (m, k) and residuals (m,). Per side and bone of :data:`ARM_BONE_RATIOS`, a row
+    where the bone's rest length leaves its band of the stature (to the band's edge); per bone,
+    the left minus the right length."""
+    J_all, r_all = [], []
+    stature = terms["s0"] + terms["gs"] @ c
+    lengths: dict[tuple[str, str], tuple[float, np.ndarray]] = {}
+    child = {"upperarm01": "lowerarm01", "lowerarm01": "wrist"}
+    for side in "LR":
+        for bone, (lo, hi) in ARM_BONE_RATIOS.items():
+            (pa, Ga), (pb, Gb) = (
+                terms["joints"][f"{bone}.{side}"],
+                terms["joints"][f"{child[bone]}.{side}"],
+            )
+            d = (pb + Gb @ c) - (pa + Ga @ c)
+            length = float(np.linalg.norm(d))
+            dL = (d / max(length, 1e-9)) @ (Gb - Ga)
+            lengths[(bone, side)] = (length, dL)
+            for edge, outside in ((lo, length < lo * stature), (hi, length > hi * stature)):
+                if outside:
+                    J_all.append(dL - edge * terms["gs"])
+                    r_all.append(length - edge * stature)
+    for bone in ARM_BONE_RATIOS:
+        (lL, dLL), (lR, dLR) = lengths[(bone, "L")], lengths[(bone, "R")]
+        J_all.append(dLL - dLR)
+        r_all.append(lL - lR)
+    return np.array(J_all), np.array(r_all)
+
+
 def fit_body_prior(
     index: ScanIndex | None,
     V0: np.ndarray,
@@ -500,6 +568,7 @@ def fit_body_prior(
     point_weight: float = 0.0,
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
     limb_prior: float = 0.0,
+    arm_length_prior: float = 0.0,
     fists: str = "",
     floor_y: float | None = None,
 ) -> PriorFit:
@@ -552,6 +621,13 @@ def fit_body_prior(
         elbows of heavy bodies 10-16 cm down the arm (rest forearm / upper arm 0.29-0.66,
         truths 0.87-0.96; ``core.synth.scanner_outputs`` raw-16/28, closed_lowres-16/24), arm
         centroids 51-84 mm off the truth's.
+    arm_length_prior : weight (per m², in units of one data row) of the arms' rest bone
+        lengths beyond their :data:`ARM_BONE_RATIOS` bands of the stature and of the left and
+        right bones' difference (the markerless fit's :data:`ARM_LENGTH_PRIOR`); 0 (default):
+        none. An arm hanging against a heavy body's side or fused to it in a closed mesh has
+        data all along the flank: without it the shape space stretched the forearms of
+        ``bench.realworld --booth`` closed_booth-339 (BMI 40, arms touching) to 0.18/0.20 of
+        the stature (the truth's 0.137), left and right apart, hands 104/124 mm low.
     fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
         (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
     floor_y : height (metres, scan frame, +Y up) below which no body vertex may go: vertices
@@ -607,6 +683,7 @@ def fit_body_prior(
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
+    arm_terms = _arm_length_terms(V0, U, art.rig) if arm_length_prior > 0 else None
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -704,6 +781,10 @@ def fit_body_prior(
         if len(G_limb):  # elbows where the shape puts them along the arm, not slid
             H[:k, :k] += limb_prior * G_limb.T @ G_limb
             g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
+        if arm_terms is not None:  # arms of a human's length, left as long as right
+            J_a, r_a = _arm_length_rows(arm_terms, c)
+            H[:k, :k] += arm_length_prior * J_a.T @ J_a
+            g[:k] -= arm_length_prior * J_a.T @ r_a
         H += damping * np.diag(np.diag(H))
         delta = np.linalg.solve(H, g)
         c = c + delta[:k]

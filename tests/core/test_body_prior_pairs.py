@@ -51,3 +51,32 @@ def test_the_leg_twist_prior_weighs_twist_about_the_thigh_only() -> None:
         w, vecs = np.linalg.eigh(M)
         assert np.allclose(w[:2], 0.0) and w[2] > 0.05  # bending the thigh costs nothing
         assert abs(vecs[:, 2] @ axis) > 0.95, name  # twisting it about its own axis does
+
+
+def test_the_arm_length_prior_rows_are_the_lengths_linearised_with_a_band() -> None:
+    from core.registration.shape_prior import (
+        ARM_BONE_RATIOS,
+        _arm_length_rows,
+        _arm_length_terms,
+        load_shape_basis,
+    )
+    from core.rig import load_rig
+
+    tpl, basis, rig = load_template(), load_shape_basis(), load_rig()
+    terms = _arm_length_terms(tpl.V, basis.U, rig)
+    k = basis.U.shape[2]
+    J, r = _arm_length_rows(terms, np.zeros(k))
+    # the template's arms lie inside their bands and are alike: only the two L-R rows, ~0
+    assert J.shape == (len(ARM_BONE_RATIOS), k) and np.abs(r).max() < 1e-4
+    # the rows are the lengths' first-order change (finite differences at a random shape)
+    c = np.random.default_rng(0).normal(0.0, 1.0, k) * basis.sigma * 0.5
+    J, r = _arm_length_rows(terms, c)
+    dc = np.random.default_rng(1).normal(0.0, 1.0, k) * basis.sigma * 1e-4
+    _, r2 = _arm_length_rows(terms, c + dc)
+    assert len(r2) == len(r)
+    np.testing.assert_allclose(r2 - r, J @ dc, rtol=1e-3, atol=1e-9)
+    # a stature the arms are far too short for: every bone gets a row pulling it to the band
+    tall = {**terms, "s0": 3.0}
+    J, r = _arm_length_rows(tall, np.zeros(k))
+    assert len(r) == 2 * len(ARM_BONE_RATIOS) + len(ARM_BONE_RATIOS)
+    assert (r[:4] < -0.05).all()  # length - low * stature, metres
