@@ -13,6 +13,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from core.threads import KD_WORKERS
+
 
 @dataclass
 class Similarity:
@@ -192,7 +194,7 @@ class MeshDistance:
         return out
 
     def _distances(self, P: np.ndarray) -> np.ndarray:
-        _, nn = self.tree.query(P, k=self.k, workers=-1)
+        _, nn = self.tree.query(P, k=self.k, workers=KD_WORKERS)
         nn = nn.reshape(len(P), -1)
         q = len(P)
         rows = np.repeat(np.arange(q), nn.shape[1])

@@ -45,6 +45,7 @@ from core.geometry import MeshDistance
 from core.registration.operators import vertex_normals
 from core.scan import Scan
 from core.template import load_template
+from core.threads import KD_WORKERS
 
 #: A scan point more than this outside the body fitted to the scan (metres) may be hair.
 HAIR_OUT_M = 0.006
@@ -105,7 +106,7 @@ def signed_offsets(P: np.ndarray, X: np.ndarray, F: np.ndarray) -> tuple[np.ndar
     """Distance (k,) of points P (k, 3) from the body mesh (X, F), positive outside (the side
     the nearest vertex's normal points to), and that nearest vertex (k,)."""
     N = vertex_normals(X, F)
-    _, nn = cKDTree(X).query(P, workers=-1)
+    _, nn = cKDTree(X).query(P, workers=KD_WORKERS)
     d = MeshDistance(X, F, k=4).distances(P)
     side = np.einsum("kc,kc->k", P - X[nn], N[nn])
     return np.where(side >= 0, d, -d), nn

@@ -196,15 +196,19 @@ LIMB_PRIOR = 100.0
 ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
     "upperarm01": (0.125, 0.185), "lowerarm01": (0.115, 0.170),
 }  # fmt: skip
-#: Weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) of the markerless fit's arm
-#: length prior (``fit_body_prior(arm_length_prior=)``): a bone's rest length beyond its
+#: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the arm length prior
+#: (``fit_body_prior(arm_length_prior=)``; not in the default markerless fit, see below): a
+#: bone's rest length beyond its
 #: :data:`ARM_BONE_RATIOS` band of the stature, and the left and right bones' difference (the
 #: arms of one body are alike within ~2 %). Measured (``bench.realworld``, on 6a498d7):
 #: booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 -> 46.7), closed_booth-339's hands
 #: 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy 20 22.54 -> 22.75 (raw-102's
 #: lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off, the heavy set's chaos);
 #: held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It bounds, it does not place: a
-#: hand fused to the thigh still lands 5-10 cm off (the quality check says so).
+#: hand fused to the thigh still lands 5-10 cm off (the quality check says so). Not kept in
+#: the markerless fit: on heavy raw-35 (190 k points) it added a near-tied start's shape-space
+#: fit, and that scan's fit with a retry took 13.6 s CPU (the 11 s bound of
+#: ``tests/core/test_markerless_speed.py``; 12.1 s without it), for 0.1-0.5 mm.
 ARM_LENGTH_PRIOR = 100.0
 
 
