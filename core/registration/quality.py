@@ -53,7 +53,7 @@ Per part (all distances metres):
   closed_lowres-16/24/26, raw-16/24: 46-86 mm, hand centroids 44-63 mm off the truth's); good
   fits of open and mitten hands read 2-16 mm, the truths 1-11 mm.
 - ``hand_body_gap_m`` (hands only): the 5th percentile of the distances from the fitted hand
-  (without its fingers) to the fitted torso and thighs (:func:`hand_body_gap`). A hand resting on
+  (without its fingers) to the fitted torso and thighs (:func:`hand_body_gaps`). A hand resting on
   the thigh or hip is fused with it in a closed mesh (and half hidden in a raw scan): the data
   cannot tell where the hand ends, and every other hand figure reads fine wherever the fit put
   it. ``bench.realworld --booth`` (40 booth meshes, 10-15 k vertices, a8370f8): the 13 hands
@@ -459,6 +459,7 @@ def hand_figures(
     template: Template | None = None,
     p_part16: np.ndarray | None = None,
     fit_to_scan: np.ndarray | None = None,
+    body_gap: float | None = None,
 ) -> dict[str, float]:
     """Where the fitted hand sits on its arm: data beyond it, bend, proportion, tip gap.
 
@@ -466,7 +467,8 @@ def hand_figures(
     the fitted surface; ``p_part16`` (q,) the template part of each point's nearest fitted vertex
     (computed when omitted); ``side`` ``"L"`` or ``"R"``; ``fit_to_scan`` (13380,) each fitted
     vertex's distance to the scan surface (:func:`fit_to_scan_distance`; without it the tip
-    gap is NaN). ``data_beyond_m``: the points of this
+    gap is NaN); ``body_gap`` this hand's :func:`hand_body_gaps` when already computed.
+    ``data_beyond_m``: the points of this
     side's forearm or hand within ``BEYOND_RADIUS_M`` of the forearm axis line and further than
     ``BEYOND_UNEXPLAINED_M`` from the fit are projected on the axis; the ``BEYOND_MIN_POINTS``-th
     largest projection minus the fitted hand's furthest (0 when fewer points lie beyond).
@@ -504,7 +506,7 @@ def hand_figures(
         "hand_bend_deg": bend,
         "hand_proportion": max(r, 1.0 / r),
         "hand_tip_gap_m": gap,
-        "hand_body_gap_m": hand_body_gap(X, side, tpl),
+        "hand_body_gap_m": hand_body_gaps(X, tpl)[side] if body_gap is None else body_gap,
     }
 
 
@@ -512,10 +514,11 @@ def hand_figures(
 HAND_REST_PARTS = ("torso", "pelvis", "thigh_L", "thigh_R")
 
 
-def hand_body_gap(X: np.ndarray, side: str, template: Template | None = None) -> float:
-    """``hand_body_gap_m`` of hand ``side`` of the body ``X`` (13380, 3), metres: the 5th
-    percentile of the distances from the hand's vertices without its fingers to the fitted torso
-    and thighs (:data:`HAND_REST_PARTS`; the triangles of those parts only)."""
+def hand_body_gaps(X: np.ndarray, template: Template | None = None) -> dict[str, float]:
+    """``hand_body_gap_m`` of both hands of the body ``X`` (13380, 3), metres, by side
+    (``"L"``, ``"R"``): the 5th percentile of the distances from the hand's vertices without
+    its fingers to the fitted torso and thighs (:data:`HAND_REST_PARTS`; the triangles of those
+    parts only)."""
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
     rest = np.zeros(tpl.n_vertices, dtype=bool)
@@ -523,10 +526,12 @@ def hand_body_gap(X: np.ndarray, side: str, template: Template | None = None) ->
         rest |= tpl.part_mask(p)
     F = np.asarray(tpl.F, dtype=np.int64)
     new = np.cumsum(rest) - 1  # the rest parts' vertices renumbered
-    F_rest = new[F[rest[F].all(axis=1)]]
-    palm = tpl.part_mask(f"hand_{side}") & ~np.asarray(tpl.bad_scan_mask, dtype=bool)
-    d = MeshDistance(X[rest], F_rest, k=4).distances(X[palm])
-    return float(np.percentile(d, 5))
+    md = MeshDistance(X[rest], new[F[rest[F].all(axis=1)]], k=4)
+    fingers = np.asarray(tpl.bad_scan_mask, dtype=bool)
+    return {
+        side: float(np.percentile(md.distances(X[tpl.part_mask(f"hand_{side}") & ~fingers]), 5))
+        for side in "LR"
+    }
 
 
 def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -745,6 +750,7 @@ def assess_fit(
     unresolved: list[str] = []  # parts suspect only where the scan cannot tell
     torso_R = _torso_rotation(X, tpl)
     arm_sym, apart = arm_symmetry(X, tpl), feet_apart(X, tpl, torso_R)
+    body_gaps = hand_body_gaps(X, tpl)
     for i, name in enumerate(names):
         own = (labels == i) & captured
         sel = p_part == i
@@ -768,7 +774,9 @@ def assess_fit(
             **dict.fromkeys(PART_FIGURES, float("nan")),
         }
         if name.startswith("hand_"):
-            figures.update(hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16, f2s))
+            figures.update(
+                hand_figures(X, P, scan_to_fit, name[-1], tpl, p_part16, f2s, body_gaps[name[-1]])
+            )
         elif name == "head":
             figures["head_turn_deg"], figures["head_distortion_m"] = head_figures(X, tpl)
         elif name.startswith("leg_"):
@@ -779,12 +787,8 @@ def assess_fit(
             figures["foot_turn_deg"] = foot_turn(X, name[-1], tpl, torso_R)
             figures["feet_apart_m"] = apart
         pv, pr, flagged = _judge(name, figures)
-        if (
-            pv == "suspect"
-            and AMBIGUOUS_FIGURES[0] in flagged
-            and flagged <= set(AMBIGUOUS_FIGURES)
-        ):
-            unresolved.append(name)
+        # suspect only where the scan cannot tell (checked again below: lost or without data)
+        scan_cannot_tell = AMBIGUOUS_FIGURES[0] in flagged and flagged <= set(AMBIGUOUS_FIGURES)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
         off = (
             (reference is not None and figures["area_change"] > LOST_AREA_CHANGE)
@@ -793,7 +797,6 @@ def assess_fit(
         )
         if s2f_p95 > LOST_SCAN_TO_FIT_M * f and off and pv != "failed":
             pv = "failed"
-            unresolved = [u for u in unresolved if u != name]
             pr.insert(
                 0,
                 f"{name}: lost (scan data around it unexplained, its surface "
@@ -801,7 +804,7 @@ def assess_fit(
             )
         if n_pts < MIN_POINTS:  # data for a whole part missing: the part may be lost
             pv = "failed" if figures["coverage"] < THRESHOLDS["coverage"].failed else pv
-            unresolved = [u for u in unresolved if u != name]
+            scan_cannot_tell = False
             pr.insert(0, f"{name}: only {n_pts} scan points near it")
             if pv == "good":
                 pv = "suspect"
@@ -827,6 +830,8 @@ def assess_fit(
             foot_turn_deg=figures["foot_turn_deg"],
             feet_apart_m=figures["feet_apart_m"],
         )
+        if scan_cannot_tell and pv == "suspect":
+            unresolved.append(name)
         reasons.extend(pr)
         if rank[pv] > rank[verdict]:
             verdict = pv

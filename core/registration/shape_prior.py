@@ -198,17 +198,16 @@ ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
 }  # fmt: skip
 #: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the arm length prior
 #: (``fit_body_prior(arm_length_prior=)``; not in the default markerless fit, see below): a
-#: bone's rest length beyond its
-#: :data:`ARM_BONE_RATIOS` band of the stature, and the left and right bones' difference (the
-#: arms of one body are alike within ~2 %). Measured (``bench.realworld``, on 6a498d7):
-#: booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 -> 46.7), closed_booth-339's hands
-#: 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy 20 22.54 -> 22.75 (raw-102's
-#: lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off, the heavy set's chaos);
-#: held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It bounds, it does not place: a
-#: hand fused to the thigh still lands 5-10 cm off (the quality check says so). Not kept in
-#: the markerless fit: on heavy raw-35 (190 k points) it added a near-tied start's shape-space
-#: fit, and that scan's fit with a retry took 13.6 s CPU (the 11 s bound of
-#: ``tests/core/test_markerless_speed.py``; 12.1 s without it), for 0.1-0.5 mm.
+#: bone's rest length beyond its :data:`ARM_BONE_RATIOS` band of the stature, and the left and
+#: right bones' difference (the arms of one body are alike within ~2 %). Measured
+#: (``bench.realworld``, on 6a498d7): booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 ->
+#: 46.7), closed_booth-339's hands 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy
+#: 20 22.54 -> 22.75 (raw-102's lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off,
+#: the heavy set's chaos); held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It
+#: bounds, it does not place: a hand fused to the thigh still lands 5-10 cm off (the quality
+#: check says so). Not kept in the markerless fit: on heavy raw-35 (190 k points) it added a
+#: near-tied start's shape-space fit, and that scan's fit with a retry took 13.6 s CPU (the
+#: 11 s bound of ``tests/core/test_markerless_speed.py``; 12.1 s without it), for 0.1-0.5 mm.
 ARM_LENGTH_PRIOR = 100.0
 
 
@@ -627,7 +626,7 @@ def fit_body_prior(
         centroids 51-84 mm off the truth's.
     arm_length_prior : weight (per m², in units of one data row) of the arms' rest bone
         lengths beyond their :data:`ARM_BONE_RATIOS` bands of the stature and of the left and
-        right bones' difference (the markerless fit's :data:`ARM_LENGTH_PRIOR`); 0 (default):
+        right bones' difference (e.g. :data:`ARM_LENGTH_PRIOR`); 0 (default):
         none. An arm hanging against a heavy body's side or fused to it in a closed mesh has
         data all along the flank: without it the shape space stretched the forearms of
         ``bench.realworld --booth`` closed_booth-339 (BMI 40, arms touching) to 0.18/0.20 of
