@@ -106,3 +106,55 @@ def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(tmp_path):
     # fist)
     index = ScanIndex(scan)
     assert fisted_hands(index, truth) == ""
+
+
+def test_arm_length_prior_keeps_the_forearms_of_arms_fused_to_the_body(tmp_path):
+    """closed_booth-339 (BMI 40, arms touching the torso, hands fused to the thighs): the data
+    lie all along the flank and do not tell how long the forearm is. From the search's start,
+    the first body prior without the arm length prior stretches the rest forearms to > 0.17 of
+    the stature (measured 0.18/0.21; truth 0.14) and the markerless fit left the hands 105/136 mm
+    off; with it the forearms stay in their band (:data:`ARM_BONE_RATIOS`) and the fit places
+    the hands within 80 mm (measured 68/64: still suspect, the data cannot place them closer)."""
+    from core.matching.markerless import K_SCHEDULE, choose_alignment, fit_markerless
+    from core.registration.correspondence import ScanIndex
+    from core.registration.fit import template_operators
+    from core.registration.shape_prior import (
+        ARM_BONE_RATIOS,
+        ARM_LENGTH_PRIOR,
+        LIMB_PRIOR,
+        fit_body_prior,
+    )
+    from core.rig import joint_positions, load_rig
+    from core.template import load_template
+    from core.threads import single_blas_thread
+
+    _, scan, truth = _case(tmp_path, 339, "closed_booth")
+    index = ScanIndex(scan)
+    start, _ = single_blas_thread(choose_alignment)(scan, index)
+    tpl, rig = load_template(), load_rig()
+    none = np.zeros(0, np.int64)
+
+    def forearms(rest: np.ndarray) -> list[float]:
+        J, stature = joint_positions(rest, rig=rig), float(np.ptp(rest[:, 1]))
+        return [
+            float(np.linalg.norm(J[rig.index(f"wrist.{s}")] - J[rig.index(f"lowerarm01.{s}")]))
+            / stature
+            for s in "LR"
+        ]
+
+    def prior(weight: float):  # the markerless fit's first body prior
+        return fit_body_prior(
+            index, tpl.V, np.asarray(tpl.F, np.int64), none, np.zeros((0, 3)), start.similarity,
+            data_mask=template_operators().full.data_mask, k_schedule=K_SCHEDULE, iterations=16,
+            bidirectional=True, freeze_pose=3, initial_pose=start.pose,
+            initial_coefficients=start.coefficients, limb_prior=LIMB_PRIOR,
+            arm_length_prior=weight,
+        )  # fmt: skip
+
+    assert max(forearms(truth)) < 0.145  # posed joints: 0.14
+    assert max(forearms(prior(0.0).rest)) > 0.17  # the failure the prior prevents
+    kept = forearms(prior(ARM_LENGTH_PRIOR).rest)
+    assert max(kept) < ARM_BONE_RATIOS["lowerarm01"][1] + 0.005, kept
+    res = fit_markerless(scan)
+    off = _offsets_mm(res.vertices, truth, ("hand_L", "hand_R"))
+    assert max(off.values()) < 80.0, off
