@@ -27,7 +27,6 @@ from core.registration.initialization import Similarity
 from core.registration.quality import hand_tip_gap
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
-    ARM_LENGTH_PRIOR,
     BONE_PRIOR,
     FOOT_PRIOR,
     HEAD_PRIOR,
@@ -334,7 +333,7 @@ def search_starts(
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
             point_weight=SEARCH_POINT_WEIGHT, limb_prior=LIMB_PRIOR,
-            arm_length_prior=ARM_LENGTH_PRIOR, bone_prior=SEARCH_BONE_PRIOR,
+            bone_prior=SEARCH_BONE_PRIOR,
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []
@@ -542,7 +541,6 @@ def fit_markerless(
             "initial_pose": start.pose,
             "initial_coefficients": start.coefficients,
             "limb_prior": LIMB_PRIOR,
-            "arm_length_prior": ARM_LENGTH_PRIOR,
             "bone_prior": MARKERLESS_BONE_PRIOR,
             "floor_y": floor_y,
         }
@@ -592,7 +590,6 @@ def fit_markerless(
             callback=callback if last else None, retry=last, index=round_index, assess=last,
             retries=MARKERLESS_RETRIES, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
-                "arm_length_prior": ARM_LENGTH_PRIOR,
             },
             **options,
         )  # fmt: skip

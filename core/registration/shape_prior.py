@@ -190,32 +190,25 @@ LIMB_PRIOR = 100.0
 #: Plausible rest lengths of the arm's bones per stature (joint to joint: ``upperarm01`` →
 #: ``lowerarm01`` → ``wrist``; stature: the rest body's height), ``{bone: (low, high)}``. ANSUR
 #: II (dev split) reads forearm (radiale–stylion) / stature 0.129–0.176 in all 4 082 soldiers
-#: (mean 0.150, SD 0.0065, ±4 %) and upper arm (acromion–radiale, from the acromion above the
-#: joint) 0.171–0.214 (SD 0.006); the off-model bodies of ``core.synth.realworld`` (bones ±7 %),
-#: joint to joint, 0.138–0.169 and 0.126–0.162; the shape space's mean body 0.137 and 0.136.
-#: ANSUR's landmarks are not the rig's joints (the template's radiale–stylion is 0.94 of its
-#: joints' forearm), so the bands are ANSUR's spread (±2 SD about the middle, 0.1425, for the
-#: forearm; wider for the upper arm, whose joint lies deep in the shoulder) placed over the
-#: off-model bodies' range. Tried (``bench.realworld --booth``): a pull of every forearm to
-#: 0.1425 placed fused hands better (booth touching-arms cases 24.70 -> 22.85 mm) but moved
-#: clearly scanned short forearms (closed_booth-313/316/310, truths 0.132–0.135: hands 17 -> 33
-#: mm off); this band left the cases with arms apart as they were (14.95 -> 14.88 mm) and the
-#: touching ones 24.70 -> 23.12.
+#: (mean 0.150, ±4 % SD) and upper arm (acromion–radiale, from the acromion above the joint)
+#: 0.171–0.214; the off-model bodies of ``core.synth.realworld`` (bones ±7 %), joint to joint,
+#: 0.138–0.169 and 0.126–0.162. The bands hold all of them with a margin.
 ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
-    "upperarm01": (0.135, 0.175), "lowerarm01": (0.130, 0.155),
+    "upperarm01": (0.125, 0.185), "lowerarm01": (0.115, 0.170),
 }  # fmt: skip
-#: Weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) of the arm length prior
-#: (``fit_body_prior(arm_length_prior=)``, on in the markerless fit): a bone's rest length
-#: beyond its :data:`ARM_BONE_RATIOS` band of the stature, and the left and right bones'
-#: difference (the arms of one body are alike within ~2 %). 10 000 per m² is ~1.3 data rows for
-#: a bone ~12 mm (one ANSUR SD) past its band: little against an arm the data show, decisive
-#: where they do not. An arm hanging against the body (fused to the torso and thigh in a closed
-#: mesh) has data all along the flank, and the shape space stretched its forearm freely:
-#: closed_booth-339 (BMI 40, arms touching) read forearms 0.18/0.21 of the stature (truth 0.14),
-#: hands 105/136 mm off; with the prior the forearms stop at the band's edge, hands 68/64 mm
-#: (whole sets: bench/README, "Runs in stop 23"). The first version (stop 22: bands 0.125–0.185
-#: and 0.115–0.170, weight 100) bounded without placing (339's hands 95 mm off) and was left out.
-ARM_LENGTH_PRIOR = 10_000.0
+#: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the arm length prior
+#: (``fit_body_prior(arm_length_prior=)``; not in the default markerless fit, see below): a
+#: bone's rest length beyond its :data:`ARM_BONE_RATIOS` band of the stature, and the left and
+#: right bones' difference (the arms of one body are alike within ~2 %). Measured
+#: (``bench.realworld``, on 6a498d7): booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 ->
+#: 46.7), closed_booth-339's hands 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy
+#: 20 22.54 -> 22.75 (raw-102's lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off,
+#: the heavy set's chaos); held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It
+#: bounds, it does not place: a hand fused to the thigh still lands 5-10 cm off (the quality
+#: check says so). Not kept in the markerless fit: on heavy raw-35 (190 k points) it added a
+#: near-tied start's shape-space fit, and that scan's fit with a retry took 13.6 s CPU (the
+#: 11 s bound of ``tests/core/test_markerless_speed.py``; 12.1 s without it), for 0.1-0.5 mm.
+ARM_LENGTH_PRIOR = 100.0
 
 
 def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
@@ -632,12 +625,12 @@ def fit_body_prior(
         truths 0.87-0.96; ``core.synth.scanner_outputs`` raw-16/28, closed_lowres-16/24), arm
         centroids 51-84 mm off the truth's.
     arm_length_prior : weight (per m², in units of one data row) of the arms' rest bone
-        lengths beyond their :data:`ARM_BONE_RATIOS` bands of the stature and of the
-        left and right bones' difference (the markerless fit's :data:`ARM_LENGTH_PRIOR`); 0
-        (default): none. An arm hanging against a heavy body's side or fused to it in a closed
-        mesh has data all along the flank: without it the shape space stretched the forearms of
-        ``bench.realworld --booth`` closed_booth-339 (BMI 40, arms touching) to 0.18/0.21 of
-        the stature (the truth's 0.14), hands 105/136 mm off the truth's.
+        lengths beyond their :data:`ARM_BONE_RATIOS` bands of the stature and of the left and
+        right bones' difference (e.g. :data:`ARM_LENGTH_PRIOR`); 0 (default):
+        none. An arm hanging against a heavy body's side or fused to it in a closed mesh has
+        data all along the flank: without it the shape space stretched the forearms of
+        ``bench.realworld --booth`` closed_booth-339 (BMI 40, arms touching) to 0.18/0.20 of
+        the stature (the truth's 0.137), left and right apart, hands 104/124 mm low.
     fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
         (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
     floor_y : height (metres, scan frame, +Y up) below which no body vertex may go: vertices
