@@ -23,6 +23,7 @@ from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
 from core.registration.correspondence import ScanIndex
 from core.registration.fit import RETRIES, FitResult, Progress, fit, template_operators
+from core.registration.hand_length import free_hand_ends, scanned_hand_roundness
 from core.registration.initialization import Similarity
 from core.registration.quality import hand_tip_gap
 from core.registration.schedule import Schedule
@@ -543,6 +544,7 @@ def fit_markerless(
             "limb_prior": LIMB_PRIOR,
             "bone_prior": MARKERLESS_BONE_PRIOR,
             "floor_y": floor_y,
+            "hand_length": True,
         }
         prior_options.update(user_prior)
         return fit(
@@ -585,11 +587,16 @@ def fit_markerless(
             # the truth after round 1, 20-22 mm before; their twins 15.6 -> 12.2 mm without it)
             for x in fists:
                 marks.pop(f"Dactylion_{x}")
+            # an open hand clear of the body: its fingertip where the scanned hand ends (the
+            # first fit's came from the shape coefficients: the fingers take no data)
+            for x, end in free_hand_ends(round_index, res.vertices, skip=fists).items():
+                marks[f"Dactylion_{x}"] = end.point
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
             retries=MARKERLESS_RETRIES, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
+                "hand_length": True,
             },
             **options,
         )  # fmt: skip
@@ -628,6 +635,11 @@ def fit_markerless(
 #: A hand of the first shape-space fit whose fingertips (quality figure ``hand_tip_gap_m``) are
 #: further than this from the scan is fitted as a fist in the soft-marker rounds.
 FIST_TIP_GAP_M = 0.042
+#: least :func:`core.registration.hand_length.scanned_hand_roundness` of a fist: the 46 fists of
+#: ``bench.realworld``'s varied, heavy and booth sets read 0.60-0.82 (one at the thigh, tip gap
+#: 3 mm, 0.42); their open hands with fingertips past :data:`FIST_TIP_GAP_M` 0.32-0.55, but
+#: for two resting on the thigh in closed booth meshes (0.59, 0.61)
+FIST_ROUNDNESS = 0.575
 
 
 def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
@@ -645,8 +657,20 @@ def fisted_hands(index: ScanIndex, X: np.ndarray) -> str:
     rest 55 and up; closed_plate-27's left fist, against the thigh, reads 6), the 58 open hands
     1-36 mm (closed_lowres-28 33/36, raw_clutter-10 28/32): the limit lies halfway. (Before, the
     palm pulled over the fingers' data read open hands up to 44 mm and the limit was 55 mm.)
+
+    A hand past the tip gap must also be round in section (:func:`scanned_hand_roundness` at
+    least :data:`FIST_ROUNDNESS`, or not measurable): heavy bodies' first fits put the arm
+    2-5 cm out along itself, and their open hands' fingertips 43-78 mm past the scan (27 of
+    the 58 open hands of the heavy and booth sets past 42 mm) — flat palms all the same.
     """
-    return "".join(x for x in "LR" if hand_tip_gap(index, X, x) > FIST_TIP_GAP_M)
+    fists = ""
+    for x in "LR":
+        if hand_tip_gap(index, X, x) <= FIST_TIP_GAP_M:
+            continue
+        roundness = scanned_hand_roundness(index, X, x)
+        if roundness is None or roundness >= FIST_ROUNDNESS:
+            fists += x
+    return fists
 
 
 def scan_floor(scan: Scan) -> float:

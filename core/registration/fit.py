@@ -442,6 +442,11 @@ def initial_body(
         f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
         f"data rms {prior.rms_data_m * 1000:.1f} mm"
     )
+    if prior.hand_lengths:
+        report.notes.append(
+            "hand length set (the fingers take no data): "
+            + "; ".join(h.note() for h in prior.hand_lengths)
+        )
     # markers the fitted body cannot reach and their neighbours contradict: weighed down
     # (robust weights of the prior, carried into E_m), never dropped for the prior's sake
     marker_w = prior.marker_weights.copy()

@@ -23,7 +23,7 @@ the markers-only fit (``fit_markers_only(basis=...)``) and the markerless search
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,9 +34,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from core.registration.correspondence import ScanIndex
+from core.registration.hand_length import HandLength, correct_hand_lengths
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
 from core.rig import Rig, bone_transforms, finger_rotations, joint_positions, load_rig
+from core.template import load_template
 
 if TYPE_CHECKING:
     from core.shapespace.pca import PCA
@@ -225,8 +227,6 @@ def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
 @cache
 def template_arm_abduction() -> float:
     """Degrees between the template's left upper arm (shoulder → elbow joint) and −Y."""
-    from core.template import load_template
-
     rig = load_rig()
     J = joint_positions(load_template().V, rig=rig)
     d = J[rig.index("lowerarm01.L")] - J[rig.index("upperarm01.L")]
@@ -261,6 +261,7 @@ class PriorOptions:
     arm_length_prior: float = 0.0
     fists: str = ""
     floor_y: float | None = None
+    hand_length: bool = False
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -302,6 +303,7 @@ class PriorFit:
     data_cost_m: float  # rms template→scan distance, unmatched vertices counted as 5 cm
     coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm
     marker_weights: np.ndarray  # (km,) final robust weight of each marker, fraction of full
+    hand_lengths: list[HandLength] = field(default_factory=list)  # hands set to their length
 
 
 def marker_weights(
@@ -574,6 +576,7 @@ def fit_body_prior(
     arm_length_prior: float = 0.0,
     fists: str = "",
     floor_y: float | None = None,
+    hand_length: bool = False,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -638,6 +641,10 @@ def fit_body_prior(
         weight :data:`FLOOR_WEIGHT`, :func:`floor_pairs`). None (default): no floor. Scans
         without soles (a raw scan's floor contact band cut) left the feet free to grow
         downwards along the instep.
+    hand_length : with a scan, set each hand's length after the fit: to the scanned hand's end
+        where it is clear of the body, into ANSUR II's band of the stature where it is not
+        (:func:`core.registration.hand_length.correct_hand_lengths`; the fingers take no data,
+        so the coefficients alone gave the length: 4-19 % long on closed booth meshes).
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -822,9 +829,15 @@ def fit_body_prior(
         d = np.where(corr.weights > 0, corr.distances, np.inf)
         cost = float(np.sqrt(np.mean(np.minimum(d, 0.05) ** 2)))
         coverage = float(np.mean(d < 0.015))
+    hands: list[HandLength] = []
+    if index is not None and hand_length:
+        top = load_template().landmarks["Vertex"]
+        stature = (rest[top, 1] - rest[:, 1].min()) * sim.s
+        X, hands = correct_hand_lengths(index, X, stature, fists=fists)
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
         marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage, marker_weights=final_w,
+        hand_lengths=hands,
     )  # fmt: skip

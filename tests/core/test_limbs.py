@@ -10,16 +10,6 @@ import pytest
 pytest.importorskip("skimage")
 
 
-def _case(tmp_path, seed: int, kind: str):
-    """(case, scan loaded as the CLI does, truth in the scan's canonical frame)."""
-    from core.io import load_scan
-    from core.synth.scanner_outputs import make_case
-
-    case = make_case(seed, kind)
-    scan, _ = load_scan(case.write(tmp_path / f"{kind}-{seed}.ply"))
-    return case, scan, scan.frame.to_canonical(case.truth)
-
-
 def _offsets_mm(X: np.ndarray, truth: np.ndarray, parts: tuple[str, ...]) -> dict[str, float]:
     from core.registration.quality import part_labels
 
@@ -31,7 +21,7 @@ def _offsets_mm(X: np.ndarray, truth: np.ndarray, parts: tuple[str, ...]) -> dic
     return out
 
 
-def test_limb_prior_keeps_the_elbows_of_a_heavy_body(tmp_path):
+def test_limb_prior_keeps_the_elbows_of_a_heavy_body(realworld_case):
     """closed_lowres-16 (BMI 36, arms 47°): from the search's start, the markerless body prior
     without the limb-proportion prior slides the elbows down the arms (rest upper arm 347/427 mm,
     forearm 187/114; truth 251/242) and leaves the right arm's centroid 68 mm off the truth's;
@@ -45,7 +35,7 @@ def test_limb_prior_keeps_the_elbows_of_a_heavy_body(tmp_path):
     from core.template import load_template
     from core.threads import single_blas_thread
 
-    _, scan, truth = _case(tmp_path, 16, "closed_lowres")
+    _, scan, truth = realworld_case(16, "closed_lowres")
     index = ScanIndex(scan)
     start, _ = single_blas_thread(choose_alignment)(scan, index)
     tpl, rig = load_template(), load_rig()
@@ -74,7 +64,7 @@ def test_limb_prior_keeps_the_elbows_of_a_heavy_body(tmp_path):
     assert max(off.values()) < 25.0, off  # measured 8 / 11 (39 / 68 without)
 
 
-def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(tmp_path):
+def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(realworld_case):
     """closed_lowres-24 (fists on a closed mesh): the true body's fingertips lie on the scan; the
     same body and posture with open hands (what the template's hand becomes when fitted to a fist:
     fingers straight out of the scan) has both hands flagged by their fingertips' gap to it. (The
@@ -84,7 +74,7 @@ def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(tmp_path):
     from core.registration.quality import assess_fit
     from core.synth.realworld import off_model_body, posture
 
-    case, scan, truth = _case(tmp_path, 24, "closed_lowres")
+    case, scan, truth = realworld_case(24, "closed_lowres")
     assert case.params["posture"]["fist"]
     body = off_model_body(np.random.default_rng([24, 101]))
     fist, _ = posture(body.V, np.random.default_rng([24, 102]))

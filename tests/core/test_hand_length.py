@@ -1,0 +1,116 @@
+"""Hands of markerless fits (``core.registration.hand_length``, ``core.matching.markerless``):
+the hand's length comes from the scanned hand where it is free, a flat open hand whose fingers
+reach past the scan is not taken for a fist, and a heavy body's open hands end where the scan's
+do."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("skimage")
+
+
+def _scaled_hands(X: np.ndarray, factor: float) -> np.ndarray:
+    """X (13380, 3) with both hands scaled by ``factor`` about their wrists (styloids' midpoint)."""
+    from core.template import load_template
+
+    tpl = load_template()
+    out = X.copy()
+    for s in "LR":
+        w = (X[tpl.landmarks[f"Radial_styloid_{s}"]] + X[tpl.landmarks[f"Ulnar_styloid_{s}"]]) / 2
+        m = tpl.part_mask(f"hand_{s}")
+        out[m] = w + factor * (X[m] - w)
+    return out
+
+
+def _hand_length(X: np.ndarray, s: str) -> float:
+    from core.template import load_template
+
+    L = load_template().landmarks
+    w = (X[L[f"Radial_styloid_{s}"]] + X[L[f"Ulnar_styloid_{s}"]]) / 2
+    return float(np.linalg.norm(X[L[f"Dactylion_{s}"]] - w))
+
+
+def test_hands_take_their_length_from_the_scan_or_the_stature(realworld_case, monkeypatch):
+    """raw-35 (BMI 44, open hands 27° from the body): the true body with hands 20 % long gets
+    them back to the scanned hands' length (within 8 mm of the truth's 169 mm); read as hands at
+    the body (not measured), the same hands are held in ANSUR II's band of the stature."""
+    from core.registration import hand_length
+    from core.registration.correspondence import ScanIndex
+    from core.template import load_template
+
+    _, scan, truth = realworld_case(35, "raw")
+    index = ScanIndex(scan)
+    tpl = load_template()
+    stature = float(np.ptp(truth[:, 1]))  # this scan reads head-down: the fit turns it over
+    long_ = _scaled_hands(truth, 1.2)
+    fixed, made = hand_length.correct_hand_lengths(index, long_, stature)
+    assert [h.source for h in made] == ["scan", "scan"], made
+    for s in "LR":
+        assert _hand_length(long_, s) - _hand_length(truth, s) > 0.030  # the error made
+        assert abs(_hand_length(fixed, s) - _hand_length(truth, s)) < 0.008, made
+    # the forearms stay where they were (but for the ramp's first mm past the styloids)
+    fore = tpl.part_mask("forearm_L") | tpl.part_mask("forearm_R")
+    moved = np.linalg.norm(fixed[fore] - long_[fore], axis=1)
+    assert np.median(moved) == 0.0 and moved.max() < 0.008, moved.max()
+    # a fist is left alone
+    _, made_fist = hand_length.correct_hand_lengths(index, long_, stature, fists="LR")
+    assert made_fist == []
+    # hands at the body: the scan cannot say where they end; the band holds them
+    monkeypatch.setattr(hand_length, "FREE_HAND_GAP_M", 10.0)
+    held, made = hand_length.correct_hand_lengths(index, long_, stature)
+    assert [h.source for h in made] == ["stature", "stature"], made
+    for s in "LR":
+        target = hand_length.HAND_STATURE_BAND[1] * stature  # the styloids ride the ramp
+        assert _hand_length(held, s) == pytest.approx(target, abs=0.001)
+
+
+def test_flat_hands_past_the_scan_are_not_fists(realworld_case):
+    """An open hand whose fingertips reach past the scan (here the true body's hands 40 % long
+    on raw-35) reads like a fist by the tip gap alone; its scanned palm is flat and the fit
+    keeps it open. The fists of closed_lowres-24, fitted with open hands, are still fists."""
+    from core.matching.markerless import FIST_ROUNDNESS, FIST_TIP_GAP_M, fisted_hands
+    from core.registration.correspondence import ScanIndex
+    from core.registration.hand_length import scanned_hand_roundness
+    from core.registration.quality import hand_tip_gap
+    from core.synth.realworld import off_model_body, posture
+
+    _, scan, truth = realworld_case(35, "raw")
+    index = ScanIndex(scan)
+    long_ = _scaled_hands(truth, 1.4)
+    for s in "LR":
+        assert hand_tip_gap(index, long_, s) > FIST_TIP_GAP_M  # what made it a fist before
+        r = scanned_hand_roundness(index, long_, s)
+        assert r is not None and r < FIST_ROUNDNESS - 0.05, r  # measured 0.48 on the left
+    assert fisted_hands(index, long_) == ""
+
+    case, scan, truth = realworld_case(24, "closed_lowres")
+    assert case.params["posture"]["fist"]
+    body = off_model_body(np.random.default_rng([24, 101]))
+    open_, _ = posture(body.V, np.random.default_rng([24, 102]), fist=False)
+    open_ = scan.frame.to_canonical(open_ @ case.to_file[:3, :3].T + case.to_file[:3, 3])
+    index = ScanIndex(scan)
+    for s in "LR":
+        r = scanned_hand_roundness(index, open_, s)
+        assert r is not None and r > FIST_ROUNDNESS, r
+    assert fisted_hands(index, open_) == "LR"
+
+
+def test_a_heavy_bodys_open_hands_end_where_the_scan_does(realworld_case):
+    """raw-35 markerless: the first fit puts the arms 3-5 cm out along themselves and the
+    fingertips 50-58 mm past the scan. Before, both hands were fitted as fists (centroids 32 and
+    22 mm off the truth's); now open, their fingertips at the scanned hands' ends."""
+    from core.matching.markerless import fit_markerless
+    from core.registration.quality import part_labels
+
+    case, scan, _ = realworld_case(35, "raw")
+    res = fit_markerless(scan)
+    truth = scan.frame.to_canonical(case.truth)  # after the fit: it may have turned the scan
+    assert not any("fitted as fists" in n for n in res.report.notes), res.report.notes
+    labels, names = part_labels()
+    for s in "LR":
+        m = labels == names.index(f"hand_{s}")
+        off = np.linalg.norm(res.vertices[m].mean(0) - truth[m].mean(0)) * 1000
+        assert off < 20.0, (s, off)  # measured 12 / 15
+        assert res.report.quality.parts[f"hand_{s}"].hand_tip_gap_m < 0.015
