@@ -61,8 +61,8 @@ MIN_HAND_POINTS = 20
 class HandLength:
     """One hand's length correction.
 
-    side : ``"L"`` or ``"R"``. source : ``"scan"`` (the scanned hand's end), ``"stature"``
-    (the ANSUR band) or ``""`` (left as the prior made it). fit_m, target_m : wrist →
+    side : ``"L"`` or ``"R"``. source : ``"scan"`` (the scanned hand's end) or ``"stature"``
+    (the ANSUR band). fit_m, target_m : wrist →
     middle fingertip before and after, metres. scale : the factor applied about the wrist.
     """
 
@@ -161,13 +161,17 @@ def scanned_hand_roundness(
 
 
 def free_hand_ends(
-    index: ScanIndex, X: np.ndarray, skip: str = "", template: Template | None = None
+    index: ScanIndex,
+    X: np.ndarray,
+    skip: str = "",
+    template: Template | None = None,
+    gaps: dict[str, float] | None = None,
 ) -> dict[str, HandEnd]:
     """Side -> :func:`scanned_hand_end` of the hands of the body ``X`` (13380, 3) clear of it
-    (:func:`core.registration.quality.hand_body_gaps` above :data:`FREE_HAND_GAP_M`) and
-    measurable; sides in ``skip`` left out."""
+    (:func:`core.registration.quality.hand_body_gaps` above :data:`FREE_HAND_GAP_M`; ``gaps``
+    when already computed) and measurable; sides in ``skip`` left out."""
     tpl = template or load_template()
-    gaps = hand_body_gaps(X, tpl)
+    gaps = hand_body_gaps(X, tpl) if gaps is None else gaps
     out = {}
     for side in "LR":
         if side in skip or gaps[side] <= FREE_HAND_GAP_M:
@@ -190,7 +194,7 @@ def correct_hand_lengths(
     alone). Returns the new body and the corrections made (a hand left alone is not listed)."""
     tpl = template or load_template()
     gaps = hand_body_gaps(X, tpl)
-    ends = free_hand_ends(index, X, fists, tpl)
+    ends = free_hand_ends(index, X, fists, tpl, gaps=gaps)
     out = X.copy()
     made: list[HandLength] = []
     lo, hi = HAND_STATURE_BAND
