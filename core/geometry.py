@@ -77,13 +77,23 @@ def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted face normals (m, 3): cross products, length = 2 × triangle area."""
     V = np.asarray(V, dtype=np.float64)
     a = V[F[:, 0]]
-    return np.cross(V[F[:, 1]] - a, V[F[:, 2]] - a)
+    u, v = V[F[:, 1]] - a, V[F[:, 2]] - a
+    out = np.empty_like(u)  # the cross product by components: np.cross costs ~2x here
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.subtract(u[:, j] * v[:, k], u[:, k] * v[:, j], out=out[:, i])
+    return out
+
+
+def row_norms(X: np.ndarray) -> np.ndarray:
+    """Euclidean lengths (k,) of the rows of X (k, d) (``np.linalg.norm(X, axis=1)`` at about
+    half its CPU on large arrays)."""
+    return np.sqrt(np.einsum("ij,ij->i", X, X))
 
 
 def normalize(N: np.ndarray, fallback=(0.0, 1.0, 0.0)) -> np.ndarray:
     """Rows of N (n, 3) scaled to unit length; zero or non-finite rows become ``fallback``."""
     N = np.asarray(N, dtype=np.float64)
-    L = np.sqrt(np.einsum("ij,ij->i", N, N))
+    L = row_norms(N)
     ok = np.isfinite(L) & (L > 1e-30)
     out = N / np.where(ok, L, 1.0)[:, None]  # one pass, no masked copies (300 k rows: 2x faster)
     if not ok.all():

@@ -187,11 +187,26 @@ def _stray(V: np.ndarray) -> tuple[np.ndarray, int]:
     size = np.bincount(lab, weights=count, minlength=ncl)
     main = int(np.argmax(size))
     plab = lab[inv]
-    other = np.flatnonzero(plab != main)
     # voxel centres are not the points: a cluster is stray only if every one of its points is
-    # at least the gap from the main body's points
-    d, _ = cKDTree(V[plab == main]).query(V[other], distance_upper_bound=STRAY_GAP)
-    near = np.unique(plab[other[np.isfinite(d)]])
+    # at least the gap from the main body's points. A point lies within sqrt(3) voxels of its
+    # voxel's centre, so only voxels whose centres are within the gap plus two of those of a
+    # voxel of the other side can hold such a pair; the exact test runs on their points only.
+    reach = STRAY_GAP + 2.0 * np.sqrt(3.0) * STRAY_VOXEL
+    main_vox = np.flatnonzero(lab == main)
+    other_vox = np.flatnonzero(lab != main)
+    d, _ = cKDTree(centre[main_vox]).query(centre[other_vox], distance_upper_bound=reach)
+    other_vox = other_vox[np.isfinite(d)]
+    near = np.zeros(0, np.int64)
+    if len(other_vox):
+        d, _ = cKDTree(centre[other_vox]).query(centre[main_vox], distance_upper_bound=reach)
+        main_vox = main_vox[np.isfinite(d)]
+        in_other = np.zeros(k, bool)
+        in_other[other_vox] = True
+        in_main = np.zeros(k, bool)
+        in_main[main_vox] = True
+        other = np.flatnonzero(in_other[inv])
+        d, _ = cKDTree(V[in_main[inv]]).query(V[other], distance_upper_bound=STRAY_GAP)
+        near = np.unique(plab[other[np.isfinite(d)]])
     stray = np.zeros(ncl, bool)
     stray[np.setdiff1d(np.arange(ncl), np.r_[near, main])] = True
     if not stray.any() or size[stray].sum() > STRAY_MAX_SHARE * n:

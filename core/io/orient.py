@@ -24,7 +24,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from core.io._geometry import face_normals
+from core.geometry import face_normals, row_norms
 
 #: Smallest |area-weighted mean cosine| between normals and directions from an open patch's
 #: centroid (or from the vertical axis) that counts as evidence of its side.
@@ -64,20 +64,28 @@ def _patches_and_relative_signs(
     patch consistently wound; which triangles have a boundary (single-use) edge; the undirected
     edges and their use counts."""
     m = len(F)
-    a = F.astype(np.int64).T  # (3, m)
-    b = np.roll(a, -1, axis=0)  # half-edges a[k] -> b[k], k = 0, 1, 2
+    a = np.ascontiguousarray(F, dtype=np.int64)  # (m, 3): half-edge 3 f + k is a[f, k] -> b[f, k]
+    b = a[:, [1, 2, 0]]
     lo, hi = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()
     n = int(F.max()) + 1
     key = lo * n + hi
-    order = np.argsort(key)  # equal keys need no order: a group is used as a whole
-    ks = key[order]
+    # group the half-edges by key: one value sort of key and half-edge index packed into an
+    # int64 (several times faster than argsort) where they fit, else an argsort
+    shift = int(3 * m - 1).bit_length()
+    if (n * n - 1).bit_length() + shift <= 62:
+        packed = np.sort((key << shift) | np.arange(3 * m, dtype=np.int64))
+        ks, order = packed >> shift, packed & ((1 << shift) - 1)
+    else:
+        order = np.argsort(key)  # equal keys need no order: a group is used as a whole
+        ks = key[order]
     start = np.empty(len(ks), bool)
     start[0] = True
     np.not_equal(ks[1:], ks[:-1], out=start[1:])
     first = np.flatnonzero(start)
     count = np.diff(np.r_[first, len(ks)])
-    E = np.stack([lo[order[first]], hi[order[first]]], axis=1)
-    fo = order % m  # triangle of each sorted half-edge
+    uk = ks[first]
+    E = np.stack([uk // n, uk % n], axis=1)
+    fo = order // 3  # triangle of each sorted half-edge
     on_boundary = np.zeros(m, bool)
     on_boundary[fo[first[count == 1]]] = True
     # manifold edges: exactly two uses -> a pair of adjacent triangles
@@ -134,7 +142,7 @@ def orient_components(
         raise ValueError("centres and radial need one row per triangle")
     n_patch, label, sign, on_boundary, E, counts = _patches_and_relative_signs(F)
     fn = face_normals(V, F)  # length 2·area
-    area = np.linalg.norm(fn, axis=1)
+    area = row_norms(fn)
     # the tree's root is arbitrary: keep the original winding of most of each patch's area
     if (sign < 0).any():
         keep_share = np.bincount(label, area * (sign > 0), minlength=n_patch)
