@@ -75,14 +75,59 @@ class ScanIndex:
         gives way to a compatible interior point at most ``rim_tolerance`` (metres) farther:
         in merged multi-view scans one view's rim lies inside another view's coverage.
         """
-        n = len(X)
         k = max(1, min(k, len(self.points)))
+        cos_lim = float(np.cos(np.deg2rad(max_angle_deg)))
+        if project or k == 1:
+            return self._match(
+                X, N, max_distance, cos_lim, k, project, smooth_radius, rim_tolerance
+            )
+        # Without projection only the chosen point matters: where the nearest point is
+        # compatible and interior it is the choice (the k-neighbour rule picks it first), so
+        # one nearest-point query settles most vertices and the k query runs on the rest only
+        # (identical result).
+        n = len(X)
+        d1, j1 = self.tree.query(X, k=1, distance_upper_bound=max_distance, workers=KD_WORKERS)
+        valid = np.isfinite(d1)
+        jm = np.where(valid, j1, 0)
+        dots = np.einsum("nc,nc->n", self.normals[jm], N)
+        done = ~valid | ((dots > cos_lim) & ~self.boundary[jm])
+        out = Correspondences(
+            targets=self.points[jm],
+            weights=np.where(valid, self.point_weight[jm], 0.0),
+            distances=np.where(valid, d1, np.inf),
+            on_boundary=np.zeros(n, dtype=bool),
+            point_ids=jm,
+        )
+        redo = np.flatnonzero(~done)
+        if len(redo):
+            sub = self._match(
+                X[redo], N[redo], max_distance, cos_lim, k, False, smooth_radius, rim_tolerance
+            )
+            out.targets[redo] = sub.targets
+            out.weights[redo] = sub.weights
+            out.distances[redo] = sub.distances
+            out.on_boundary[redo] = sub.on_boundary
+            out.point_ids[redo] = sub.point_ids
+        return out
+
+    def _match(
+        self,
+        X: np.ndarray,
+        N: np.ndarray,
+        max_distance: float,
+        cos_lim: float,
+        k: int,
+        project: bool,
+        smooth_radius: float,
+        rim_tolerance: float,
+    ) -> Correspondences:
+        """:meth:`closest_compatible` from the ``k`` nearest points of every vertex."""
+        n = len(X)
         d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=KD_WORKERS)
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)
         jj = np.where(valid, j, 0)
-        cos_lim = np.cos(np.deg2rad(max_angle_deg))
         dots = np.einsum("nkc,nc->nk", self.normals[jj], N)
         ok = valid & (dots > cos_lim)
         has = ok.any(axis=1)

@@ -235,6 +235,27 @@ def test_correspondence_respects_normals_distance_and_boundary():
     assert c.weights[3] == 0.0 and c.on_boundary[3]  # closest point on a hole boundary
 
 
+def test_closest_compatible_without_projection_is_the_k_neighbour_rule(case):
+    # the nearest-point shortcut (project=False) picks what the k-neighbour rule picks, where
+    # the nearest point is incompatible or on a rim too: every field equal on a real scan,
+    # template-like queries off the surface, flipped normals on a third of them
+    scan = case.scan
+    rng = np.random.default_rng(3)
+    ids = rng.choice(len(scan.V), 4000, replace=False)
+    X = scan.V[ids] + rng.normal(scale=0.01, size=(4000, 3))
+    N = scan.normals[ids] * np.where(rng.random(4000) < 0.33, -1.0, 1.0)[:, None]
+    idx = ScanIndex(scan)
+    assert scan.boundary[idx.tree.query(X)[1]].any()  # some queries' nearest point is a rim
+    for max_angle in (60.0, 180.0):
+        got = idx.closest_compatible(
+            X, N, max_distance=0.02, max_angle_deg=max_angle, project=False
+        )
+        ref = idx._match(X, N, 0.02, np.cos(np.deg2rad(max_angle)), 10, False, 0.003, 0.0015)
+        for f in ("targets", "weights", "distances", "on_boundary", "point_ids"):
+            np.testing.assert_array_equal(getattr(got, f), getattr(ref, f), err_msg=f)
+        assert (got.weights > 0).mean() > 0.5 and (got.weights == 0).any()
+
+
 def test_hierarchy_upsampling_is_a_partition_of_unity():
     ops = template_operators()
     U = ops.hierarchy.upsample
