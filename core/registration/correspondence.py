@@ -15,7 +15,6 @@ from scipy.spatial import cKDTree
 from core.scan import Scan
 from core.threads import KD_WORKERS
 
-
 #: Points per leaf of the scan's KD-tree (scipy's default 16). raw-35's markerless fit with a
 #: retry (tests/core/test_markerless_speed.py), alternating runs: 7.37-7.57 s CPU with 32 vs
 #: 7.86-8.00 s with 16; the search's queries alone 0.36 vs 0.52 s (64: 0.30 s, but slower on
