@@ -22,7 +22,14 @@ from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
 from core.registration.correspondence import ScanIndex
-from core.registration.fit import RETRIES, FitResult, Progress, fit, template_operators
+from core.registration.fit import (
+    RETRIES,
+    FitResult,
+    PriorRestart,
+    Progress,
+    fit,
+    template_operators,
+)
 from core.registration.hand_length import free_hand_ends, scanned_hand_roundness
 from core.registration.initialization import Similarity
 from core.registration.quality import hand_tip_gap
@@ -577,6 +584,12 @@ def fit_markerless(
     # one KD-tree for every round (and its retry): the scan's, or that of the scan without hair
     round_index = index if hair is None or hair.scan is scan else ScanIndex(hair.scan)
     fists = fisted_hands(round_index, res.vertices) if rounds else ""
+    b_ids = np.flatnonzero(template_operators().full.data_mask)[::2]
+    s_ids = scan_sample(hair.scan, 12000) if hair is not None else np.zeros(0, np.int64)
+
+    def round_score(X: np.ndarray) -> float:
+        return two_way_score(round_index, X, b_ids, s_ids)
+
     for r in range(rounds):
         last = r == rounds - 1
         assert hair is not None
@@ -591,10 +604,20 @@ def fit_markerless(
             # first fit's came from the shape coefficients: the fingers take no data)
             for x, end in free_hand_ends(round_index, res.vertices, skip=fists).items():
                 marks[f"Dactylion_{x}"] = end.point
+        # the round's body prior from the landmarks' alignment and rest pose, and from where the
+        # previous fit's ended; the latter is kept where it scores better (two-way) by more than
+        # the search's near-tie margin: from the rest pose a head could settle turned
+        # (closed_booth-303: 30°, 9 -> 39 mm off the truth; 0.512 vs 0.454), from the previous
+        # fit a heavy body's lost feet or arm stayed lost (raw-59/63 of --heavy; raw-59 0.456
+        # vs 0.535), and near ties went either way (without the margin: heavy 20 18.37 -> 19.50
+        # mm, 4 good -> suspect, each within 0.005)
+        prev = res.body_prior
+        assert prev is not None
+        restart = PriorRestart(prev, round_score, margin=TIE_MARGIN)
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
-            retries=MARKERLESS_RETRIES, prior_options={
+            retries=MARKERLESS_RETRIES, prior_restart=restart, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
                 "hand_length": True,
             },

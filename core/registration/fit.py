@@ -230,6 +230,7 @@ def iter_fit(
     part_weights: dict[str, float] | None = None,
     index: ScanIndex | None = None,
     assess: bool = True,
+    prior_restart: PriorRestart | None = None,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -262,6 +263,8 @@ def iter_fit(
     assess : measure the result (scan→fit distances, per-part quality check). False for an
         intermediate fit whose vertices alone are used (markerless rounds): the report's
         distances stay NaN and its ``quality`` None (saves ~0.25 s CPU per fit).
+    prior_restart : also start the body prior from an earlier fit's and keep the better of the
+        two (:class:`PriorRestart`; markerless rounds); the notes give both scores.
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -291,7 +294,7 @@ def iter_fit(
         index, ops, markers, align, consistent, report,
         shape_prior=shape_prior, max_distance=max_distance,
         marker_outlier_distance=marker_outlier_distance, prior_options=prior_options,
-        marker_trust=marker_trust, part_weights=part_weights,
+        marker_trust=marker_trust, part_weights=part_weights, prior_restart=prior_restart,
     )  # fmt: skip
     frame = SolverFrame.of(body, unit_scale)
     marker_pos = frame.to_solver(
@@ -371,6 +374,23 @@ def screen_and_align(
     return markers, align, consistent
 
 
+@dataclass(frozen=True)
+class PriorRestart:
+    """A second start for the body prior, kept where it explains the scan better.
+
+    prior : an earlier body prior fit of the same scan; its similarity, pose and coefficients
+        start a second fit beside the usual one (markers' alignment, rest pose).
+    score : body vertices (13380, 3), metres, scan frame -> mismatch with the scan, lower is
+        better (``core.matching.markerless.two_way_score``).
+    margin : the earlier fit's start is kept only where it scores lower by more than this (a
+        near tie keeps the usual start).
+    """
+
+    prior: PriorFit
+    score: Callable[[np.ndarray], float]
+    margin: float = 0.0
+
+
 @dataclass
 class InitialBody:
     """The body the affine refinement starts from.
@@ -402,6 +422,7 @@ def initial_body(
     prior_options: PriorOptions | dict[str, Any] | None,
     marker_trust: float | None,
     part_weights: dict[str, float] | None,
+    prior_restart: PriorRestart | None = None,
 ) -> InitialBody:
     """Initial body: the body prior (``fit_body_prior``: shape, pose, similarity) with annealed
     robust marker weights, floored for markers their neighbours agree with; or the template."""
@@ -420,19 +441,32 @@ def initial_body(
         vw = np.ones(tpl.n_vertices)
         for pname, f in part_weights.items():
             vw[labels == pnames.index(pname)] = float(f)
-    prior = fit_body_prior(
-        index,
-        tpl.V,
-        np.asarray(tpl.F, dtype=np.int64),
-        marker_vid,
-        np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3),
-        align.similarity,
-        data_mask=ops.full.data_mask,
-        max_distance=max_distance,
-        marker_floor=floor,
-        vertex_weight=vw,
-        **PriorOptions.of(prior_options).kwargs(),
-    )
+    po = PriorOptions.of(prior_options)
+    marker_pos = np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
+
+    def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
+        return fit_body_prior(
+            index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
+            data_mask=ops.full.data_mask, max_distance=max_distance, marker_floor=floor,
+            vertex_weight=vw, **options.kwargs(),
+        )  # fmt: skip
+
+    prior = prior_from(align.similarity, po)
+    if prior_restart is not None:
+        p0 = prior_restart.prior
+        again = prior_from(
+            p0.similarity,
+            replace(po, initial_pose=p0.pose, initial_coefficients=p0.coefficients),
+        )
+        s_new, s_again = prior_restart.score(prior.X), prior_restart.score(again.X)
+        use_again = s_again < s_new - prior_restart.margin
+        kept = "the earlier fit's" if use_again else "the markers' alignment"
+        report.notes.append(
+            f"start of the body prior: the markers' alignment scored {s_new:.3f}, the earlier "
+            f"fit's pose and shape {s_again:.3f} (two-way): {kept} kept"
+        )
+        if use_again:
+            prior = again
     report.scale = prior.similarity.s
     report.marker_residuals_m = {
         k: float(r) for k, r in zip(align.used, prior.marker_residuals_m, strict=True)
@@ -747,6 +781,7 @@ def fit(
     index: ScanIndex | None = None,
     assess: bool = True,
     retries: tuple[tuple[str, dict[str, Any]], ...] = RETRIES,
+    prior_restart: PriorRestart | None = None,
 ) -> FitResult:
     """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
@@ -774,6 +809,7 @@ def fit(
         "shape_prior": shape_prior, "marker_outlier_distance": marker_outlier_distance,
         "initial_similarity": initial_similarity, "prior_options": prior_options,
         "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
+        "prior_restart": prior_restart,
     }  # fmt: skip
     _check_scan(scan)  # before the KD-tree (a NaN point is a FitError, not scipy's ValueError)
     options["index"] = _scan_index(scan, index, confidence_full_at)  # shared by the retries

@@ -256,6 +256,35 @@ def test_closest_compatible_without_projection_is_the_k_neighbour_rule(case):
         assert (got.weights > 0).mean() > 0.5 and (got.weights == 0).any()
 
 
+@pytest.mark.parametrize(
+    ("scores", "margin", "second_kept"),
+    [((1.0, 0.0), 0.0, True), ((0.0, 1.0), 0.0, False), ((0.5, 0.48), 0.03, False),
+     ((0.5, 0.46), 0.03, True)],
+)  # fmt: skip
+def test_prior_restart_keeps_the_start_that_scores_better(case, scores, margin, second_kept):
+    # the body prior runs from the markers' alignment and from the earlier fit's state; the
+    # earlier fit's start is the refinement's where it scores better by more than the margin,
+    # and the notes say which was kept
+    from core.registration.fit import PriorRestart
+
+    earlier = fit(case.scan, case.markers, schedule=Schedule(()), assess=False)
+    assert earlier.body_prior is not None
+    seen: list[np.ndarray] = []
+
+    def score(X: np.ndarray) -> float:
+        seen.append(X.copy())
+        return scores[len(seen) - 1]
+
+    res = fit(
+        case.scan, case.markers, schedule=Schedule(()), assess=False,
+        prior_restart=PriorRestart(earlier.body_prior, score, margin=margin),
+    )  # fmt: skip
+    assert len(seen) == 2 and not np.array_equal(seen[0], seen[1])
+    np.testing.assert_array_equal(res.body_prior.X, seen[1] if second_kept else seen[0])
+    kept = "the earlier fit's kept" if second_kept else "the markers' alignment kept"
+    assert any(kept in n for n in res.report.notes), res.report.notes
+
+
 def test_hierarchy_upsampling_is_a_partition_of_unity():
     ops = template_operators()
     U = ops.hierarchy.upsample
