@@ -827,6 +827,9 @@ def fit(
         if not weak:
             break
         o = dict(options)
+        # a retry runs the body prior from the usual start only (not the restart's second one,
+        # ~0.45 s CPU per attempt: a retry changes the weights or the arms' start)
+        o["prior_restart"] = None
         po = replace(PriorOptions.of(o.get("prior_options")), initial_pose=start)
         o["prior_options"] = po
         if "arm_abduction" in opt:
