@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from functools import cache
+from functools import cache, partial
 from typing import Any
 
 import numpy as np
@@ -562,12 +562,13 @@ def fit_markerless(
         )  # fmt: skip
 
     start, res = tied[0], first_fit(tied[0])
+    # the body vertices that score whole fits against the scan (:func:`two_way_score`)
+    body_ids = np.flatnonzero(template_operators().full.data_mask)[::2]
     tie_note = ""
     if len(tied) > 1:
         # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot): the
         # shape-space fit from each tells them apart where the search's short fits cannot
-        ops = template_operators()
-        body_ids, scan_ids = np.flatnonzero(ops.full.data_mask)[::2], scan_sample(scan, 12000)
+        scan_ids = scan_sample(scan, 12000)
         fits = [(two_way_score(index, r.vertices, body_ids, scan_ids), st, r)
                 for st in tied for r in [res if st is tied[0] else first_fit(st)]]  # fmt: skip
         _, start, res = min(fits, key=lambda f: f[0])
@@ -584,12 +585,6 @@ def fit_markerless(
     # one KD-tree for every round (and its retry): the scan's, or that of the scan without hair
     round_index = index if hair is None or hair.scan is scan else ScanIndex(hair.scan)
     fists = fisted_hands(round_index, res.vertices) if rounds else ""
-    b_ids = np.flatnonzero(template_operators().full.data_mask)[::2]
-    s_ids = scan_sample(hair.scan, 12000) if hair is not None else np.zeros(0, np.int64)
-
-    def round_score(X: np.ndarray) -> float:
-        return two_way_score(round_index, X, b_ids, s_ids)
-
     for r in range(rounds):
         last = r == rounds - 1
         assert hair is not None
@@ -613,7 +608,10 @@ def fit_markerless(
         # mm, 4 good -> suspect, each within 0.005)
         prev = res.body_prior
         assert prev is not None
-        restart = PriorRestart(prev, round_score, margin=TIE_MARGIN)
+        score = partial(
+            two_way_score, round_index, body_ids=body_ids, scan_ids=scan_sample(hair.scan, 12000)
+        )
+        restart = PriorRestart(prev, score, margin=TIE_MARGIN)
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
