@@ -21,8 +21,8 @@ of the same seed: one body) are compared vertex by vertex in the body's frame (m
 vertices, and without the hands, which a closed mesh turns into mittens). Results go to
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
-Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--heavy | --booth] [--jobs 1]
-[--kinds K1,K2] [--seeds S1,S2]``.
+Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--heavy | --booth | --wide]
+[--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -533,6 +533,12 @@ def main(argv: list[str] | None = None) -> int:
         help="--cases closed_booth meshes (issue 12's booth subjects: 10-15 k vertices, hair, "
         "touching arms, BMI 15-55) instead of the varied set",
     )
+    ap.add_argument(
+        "--wide",
+        action="store_true",
+        help="--cases bodies with the arms 60-90° out (T-pose capture: raw scans, closed "
+        "meshes, point clouds in turn) instead of the varied set",
+    )
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
     ap.add_argument("--from-partial", metavar="JSONL", help="print the report of a partial run")
     args = ap.parse_args(argv)
@@ -545,12 +551,20 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with contextlib.suppress(OSError):
         os.nice(max(0, 10 - os.nice(0)))  # niceness 10 in all, also when started with nice
-    from core.synth.scanner_outputs import KINDS, benchmark_cases, booth_cases, heavy_cases
+    from core.synth.scanner_outputs import (
+        KINDS,
+        benchmark_cases,
+        booth_cases,
+        heavy_cases,
+        wide_cases,
+    )
 
-    if args.heavy and args.booth:
-        ap.error("--heavy and --booth are two different sets: choose one")
+    if args.heavy + args.booth + args.wide > 1:
+        ap.error("--heavy, --booth and --wide are different sets: choose one")
     if args.booth:
         cases = booth_cases(args.cases)
+    elif args.wide:
+        cases = wide_cases(args.cases)
     else:
         cases = heavy_cases(args.cases) if args.heavy else benchmark_cases(args.cases)
     if args.kinds:
@@ -573,7 +587,7 @@ def main(argv: list[str] | None = None) -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = (
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
-        f"{'-booth' if args.booth else ''}"
+        f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-markers' if args.markers else ''}"
     )
     partial = RESULTS / f"{stem}.partial.jsonl"  # one line per finished case, while running

@@ -8,8 +8,9 @@ scans 4.0–6.3 mm.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import cache, partial
 from typing import Any
 
@@ -174,6 +175,35 @@ def _template_toes() -> np.ndarray:
 #: Arm abductions (degrees from the body's side) the articulated search starts from: scanning
 #: protocols put the arms anywhere from touching the torso to 60° out.
 ARM_HYPOTHESES = (10.0, 30.0, 50.0)
+#: Further arm abductions tried where the scan is wide (:func:`arm_hypotheses`): T-pose and
+#: near-T-pose captures (arms 60-90° out). From 50° the articulated search reached 60-78° but
+#: not 80-90°: 2 of 4 raw scans with the arms 80-90° out lost both arms (300-400 mm off).
+WIDE_ARM_HYPOTHESES = (80.0,)
+#: Width (principal horizontal extent) over height above which a scan's arms may be spread
+#: 60-90°: the off-model bodies of ``core.synth.realworld`` read 0.78-0.95 with the arms 60°
+#: out, 0.87-1.08 at 80-90°, 0.71-0.86 at 50° and 0.26-0.64 at 5-30° (30 bodies each).
+WIDE_ARMS_RATIO = 0.8
+
+
+def width_ratio(scan: Scan, n: int = 20000) -> float:
+    """The scan's width over its height: robust (0.1-99.9 %) extents along its principal
+    horizontal direction and along +Y, of an even subsample of ≤ ``n`` points."""
+    V = np.asarray(scan.V)[np.linspace(0, len(scan.V) - 1, min(n, len(scan.V))).astype(np.int64)]
+    H = V[:, [0, 2]] - V[:, [0, 2]].mean(axis=0)
+    _, vecs = np.linalg.eigh(H.T @ H)
+    w = np.ptp(np.percentile(H @ vecs[:, -1], [0.1, 99.9]))
+    h = np.ptp(np.percentile(V[:, 1], [0.1, 99.9]))
+    return float(w / max(h, 1e-9))
+
+
+def arm_hypotheses(scan: Scan) -> tuple[float, ...]:
+    """The arm abductions the articulated search starts from: :data:`ARM_HYPOTHESES`, and
+    :data:`WIDE_ARM_HYPOTHESES` too where the scan is wider than :data:`WIDE_ARMS_RATIO` of
+    its height (:func:`width_ratio`)."""
+    wide = width_ratio(scan) > WIDE_ARMS_RATIO
+    return ARM_HYPOTHESES + (WIDE_ARM_HYPOTHESES if wide else ())
+
+
 #: Scale (metres) of the Geman–McClure weights of the search's two-way score.
 SCORE_SIGMA = 0.02
 #: The markerless search's pose prior: the arm bones', the head's and the thighs' twist.
@@ -290,7 +320,7 @@ def choose_alignment(
     1. rigid: a short two-way ICP of the template (shape and pose frozen, normals' sign not
        trusted) from each facing / up candidate (:func:`candidate_alignments`);
     2. articulated: from the ``keep`` best (within :data:`RIGID_KEEP_MARGIN` of the best), each
-       arm hypothesis (:data:`ARM_HYPOTHESES`) with bone rotations, similarity and the first
+       arm hypothesis (:func:`arm_hypotheses`) with bone rotations, similarity and the first
        shape components free;
     3. the head of the best (:func:`_head_start`): its neck and head at rest, flexed 0/15/30°,
        when that matches the scan's head better than the search's own.
@@ -355,7 +385,8 @@ def search_starts(
                            "coverage": t.coverage})  # fmt: skip
     rigid.sort(key=lambda r: r[0])
     plain = [r for r in rigid if r[2] == 1.0]
-    chosen = [(r, ARM_HYPOTHESES) for r in plain[:keep] if r[0] <= plain[0][0] + RIGID_KEEP_MARGIN]
+    hypotheses = arm_hypotheses(scan)
+    chosen = [r for r in plain[:keep] if r[0] <= plain[0][0] + RIGID_KEEP_MARGIN]
     starts: list[Start] = []
 
     def arms_start(r: tuple, abd: float) -> Start:
@@ -367,7 +398,7 @@ def search_starts(
                        "score": sc, "coverage": a.coverage})  # fmt: skip
         return Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label)
 
-    for r, hypotheses in chosen:
+    for r in chosen:
         starts += [arms_start(r, abd) for abd in hypotheses]
     wide = [r for r in rigid if r[2] != 1.0]
     if wide:
@@ -377,7 +408,7 @@ def search_starts(
         tried = [(arms_start(r, mid_abd), r) for r in wide]
         starts += [st for st, _ in tried]
         best = min(tried, key=lambda x: x[0].score)[1]
-        starts += [arms_start(best, abd) for abd in ARM_HYPOTHESES if abd != mid_abd]
+        starts += [arms_start(best, abd) for abd in hypotheses if abd != mid_abd]
     starts.sort(key=lambda st: st.score)
     return starts, scores
 
@@ -396,14 +427,31 @@ TIE_MARGIN = 0.03
 POOR_TIE_MARGIN = 0.06
 
 
+def _head_down(start: Start) -> bool:
+    """Whether ``start`` stands the template head-down along the scan's up axis."""
+    return bool(start.similarity.R[1, 1] < 0)
+
+
 def near_tied(starts: list[Start], min_coverage: float) -> list[Start]:
     """The best start and the second where it scores within the tie margin of it: within
     :data:`TIE_MARGIN`, or :data:`POOR_TIE_MARGIN` where the best matches less than
-    ``min_coverage`` of the template. ``starts``: best score first (:func:`search_starts`)."""
+    ``min_coverage`` of the template; where both stand the same way up, also the best start
+    standing the other way if it is within the margin. ``starts``: best score first
+    (:func:`search_starts`).
+
+    The other way up: closed_wide-501 of ``core.synth.scanner_outputs`` (BMI 57, arms 76° out,
+    hair) — its best starts stood head-down (1.299, 1.303: 16 % of the template within 1.5 cm)
+    and the best upright one scored 1.349; fitted from the head-down start the body was lost
+    (1.26 m correspondence, verdict failed), from the upright one 19 mm."""
     best = starts[0]
     poor = not np.isfinite(best.coverage) or best.coverage < min_coverage
     margin = POOR_TIE_MARGIN if poor else TIE_MARGIN
-    return [st for st in starts[:2] if st.score <= best.score + margin]
+    out = [st for st in starts[:2] if st.score <= best.score + margin]
+    if all(_head_down(st) == _head_down(best) for st in out):
+        flip = next((st for st in starts if _head_down(st) != _head_down(best)), None)
+        if flip is not None and flip.score <= best.score + margin:
+            out.append(flip)
+    return out
 
 
 #: Total neck flexions (degrees, + forward; head bone at rest) tried against the search's own head.
@@ -529,18 +577,30 @@ def fit_markerless(
     index = ScanIndex(scan)
     starts, scores = search_starts(scan, index)
     tied = [_head_start(index, st, scores) for st in near_tied(starts, min_coverage)]
-    if tied[0].similarity.R[1, 1] < 0:  # head-down along the up axis read: turn the scan over
+    # each start is fitted with the scan held its way up: the best's way is the caller's scan
+    # (turned over, in place, where it stands head-down), a contender standing the other way
+    # (:func:`near_tied`) gets a copy held its way
+    best_down = _head_down(tied[0])
+    other = [st for st in tied if _head_down(st) != best_down]
+    tied = [st for st in tied if _head_down(st) == best_down]
+    alt_scan = copy.deepcopy(scan) if other else None
+    if best_down:  # head-down along the up axis read: turn the scan over
         M = turn_over(scan)
-        tied = [_turned(st, M) for st in tied if st.similarity.R[1, 1] < 0]
+        tied = [_turned(st, M) for st in tied]
         index = ScanIndex(scan)
+    views = [(scan, index, tied)]
+    if alt_scan is not None:
+        if not best_down:
+            M = turn_over(alt_scan)
+            other = [_turned(st, M) for st in other]
+        views.append((alt_scan, ScanIndex(alt_scan), other))
     if soft_marker_rounds < 0:
         raise ValueError(f"soft_marker_rounds must be ≥ 0, got {soft_marker_rounds}")
     rounds = soft_marker_rounds if refine else 0
     sched = (schedule or Schedule.refine()) if refine else Schedule(())
     user_prior = options.pop("prior_options", {}) or {}
-    floor_y = scan_floor(scan)
 
-    def first_fit(start: Start) -> FitResult:
+    def first_fit(start: Start, view: Scan, view_index: ScanIndex) -> FitResult:
         prior_options: dict[str, Any] = {
             "k_schedule": K_SCHEDULE,
             "iterations": 16,
@@ -550,30 +610,41 @@ def fit_markerless(
             "initial_coefficients": start.coefficients,
             "limb_prior": LIMB_PRIOR,
             "bone_prior": MARKERLESS_BONE_PRIOR,
-            "floor_y": floor_y,
+            "floor_y": scan_floor(view),
             "hand_length": True,
         }
         prior_options.update(user_prior)
         return fit(
-            scan, {}, initial_similarity=start.similarity,
+            view, {}, initial_similarity=start.similarity,
             schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
-            callback=callback if rounds == 0 else None, prior_options=prior_options, index=index,
-            assess=rounds == 0, **options,
+            callback=callback if rounds == 0 else None, prior_options=prior_options,
+            index=view_index, assess=rounds == 0, **options,
         )  # fmt: skip
 
-    start, res = tied[0], first_fit(tied[0])
+    start, res = tied[0], first_fit(tied[0], scan, index)
     # the body vertices that score whole fits against the scan (:func:`two_way_score`)
     body_ids = np.flatnonzero(template_operators().full.data_mask)[::2]
     tie_note = ""
-    if len(tied) > 1:
-        # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot): the
-        # shape-space fit from each tells them apart where the search's short fits cannot
+    if sum(len(v[2]) for v in views) > 1:
+        # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot; or the
+        # body upright vs head-down): the shape-space fit from each tells them apart where the
+        # search's short fits cannot. The scan sample is the same points in either view.
         scan_ids = scan_sample(scan, 12000)
-        fits = [(two_way_score(index, r.vertices, body_ids, scan_ids), st, r)
-                for st in tied for r in [res if st is tied[0] else first_fit(st)]]  # fmt: skip
-        _, start, res = min(fits, key=lambda f: f[0])
+        fits = [
+            (two_way_score(vi, r.vertices, body_ids, scan_ids), st, r, k)
+            for k, (vs, vi, sts) in enumerate(views)
+            for st in sts
+            for r in [res if st is tied[0] else first_fit(st, vs, vi)]
+        ]
+        _, start, res, k = min(fits, key=lambda f: f[0])
+        if k == 1:  # the other way up won: the caller's scan takes that view, in place
+            assert alt_scan is not None
+            for f in fields(scan):
+                setattr(scan, f.name, getattr(alt_scan, f.name))
+            index = views[1][1]
         tie_note = "; near-tied starts, the shape-space fit from each scored " + ", ".join(
-            f"{f[1].label} {f[0]:.3f}" for f in fits
+            f"{f[1].label}{', head-down' if f[3] != int(best_down) else ''} {f[0]:.3f}"
+            for f in fits
         )
         scores += [{"stage": "tie", "label": f[1].label, "score": f[0]} for f in fits]
     best_cov = start.coverage

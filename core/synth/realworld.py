@@ -37,7 +37,8 @@ fisted (fingers curled 55–80° per joint, thumb 30°), optionally arms touchin
 lowered until a forearm or hand meets the torso, hips or thighs within 2 mm: a closed mesh then has
 a handle), feet 0–40 cm apart (gap between the medial malleoli), slight lean (spine ±5° forward, ±3°
 sideways), neck flexion 0–20°, forward head (neck flexed 0–15° and the head counter-rotated by as
-much), head yaw ±15° and roll ±5°.
+much), head yaw ±15° and roll ±5°. The wide-arms protocols (T-pose and near it: animation and
+photogrammetry capture) draw the arms 60–90° from the body instead (:data:`WIDE_ARM_RANGE`).
 """
 
 from __future__ import annotations
@@ -318,6 +319,10 @@ POSTURE_RANGES = {
     "head_yaw": (-15.0, 15.0),
     "head_roll": (-5.0, 5.0),
 }
+#: Arm abduction (degrees) of the wide-arms protocols: T-pose and near-T-pose captures of
+#: animation and photogrammetry rigs and some handheld-scan protocols (``arm_range=`` of
+#: :func:`posture`; :func:`core.synth.scanner_outputs.make_case`'s ``*_wide`` kinds).
+WIDE_ARM_RANGE = (60.0, 90.0)
 _X, _Y, _Z = np.eye(3)
 
 
@@ -335,6 +340,7 @@ def posture(
     *,
     touching: bool = False,
     fist: bool | None = None,
+    arm_range: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Pose a rest-pose body the way a real scanning protocol would (see the module docstring).
 
@@ -344,6 +350,9 @@ def posture(
     rng : the only source of randomness.
     touching : lower the arms until the upper arms meet the torso (fused in a closed mesh).
     fist : force fisted (True) or open (False) hands; None draws (30 % fisted).
+    arm_range : (low, high) degrees to draw the arm abduction from instead of
+        ``POSTURE_RANGES["arm_abduction"]`` (e.g. :data:`WIDE_ARM_RANGE`); the draws of every
+        other angle are the same.
 
     Returns
     -------
@@ -354,7 +363,7 @@ def posture(
     J = joint_positions(V, rig=rig)
     tails = joint_positions(V, rig=rig, ends="tail")
     ang = {k: float(rng.uniform(*r)) for k, r in POSTURE_RANGES.items() if k != "arm_abduction"}
-    abd = rng.uniform(*POSTURE_RANGES["arm_abduction"])
+    abd = rng.uniform(*(arm_range or POSTURE_RANGES["arm_abduction"]))
     ang["arm_abduction"] = float(abd)
     ang["arm_abduction_asym"] = float(rng.uniform(-5.0, 5.0))
     ang["elbow_flexion_asym"] = float(rng.uniform(-5.0, 5.0))
@@ -434,6 +443,7 @@ def joint_world(V: np.ndarray, rotations: dict[str, np.ndarray]) -> np.ndarray:
 
 __all__ = [
     "POSTURE_RANGES",
+    "WIDE_ARM_RANGE",
     "RealBody",
     "mesh_volume",
     "off_model_body",

@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 
 from core.geometry import MeshDistance
 from core.io.frame import rotation_for_up
-from core.synth.realworld import mesh_volume, off_model_body, posture
+from core.synth.realworld import WIDE_ARM_RANGE, mesh_volume, off_model_body, posture
 from core.synth.scanner import ScanConfig, simulate_scan, vertex_normals
 from core.template import load_template
 
@@ -78,13 +78,19 @@ KINDS = {
     "dense": "dense point cloud, 1-3 M points, no normals",
     "closed_booth": "closed booth-software mesh (as issue 12's subjects), 10-15 k vertices, "
     "mm, +Y up, hair drawn (none, bun, ponytail, cap), arms touching the torso in 40 %",
+    "raw_wide": "raw multi-view range scan, arms 60-90° from the body (T-pose capture)",
+    "closed_wide": "closed mesh (5-7 mm grid), arms 60-90° from the body (T-pose capture)",
+    "cloud_wide": "point cloud of a raw scan, no normals, arms 60-90° from the body",
 }
+#: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
+#: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
+WIDE_KINDS = {"raw_wide": "raw", "closed_wide": "closed", "cloud_wide": "cloud"}
 
 #: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
 #: fixed, so that a kind added later leaves every earlier case as it was.
 _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
-    "raw_clutter", "raw_inward", "closed_booth",
+    "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -643,8 +649,13 @@ def make_case(
     booth = kind == "closed_booth"
     brng = np.random.default_rng([seed, 105])  # the booth subject's protocol
     touching = kind == "closed_touching" or (booth and brng.random() < 0.4)
-    P, pose = posture(body.V, np.random.default_rng([seed, 102]), touching=touching)
-    rng = np.random.default_rng([seed, 103, kinds.index(kind)])
+    wide = kind in WIDE_KINDS
+    arm_range = WIDE_ARM_RANGE if wide else None
+    P, pose = posture(
+        body.V, np.random.default_rng([seed, 102]), touching=touching, arm_range=arm_range
+    )
+    kind_drawn, kind = kind, WIDE_KINDS.get(kind, kind)  # a wide kind is delivered as its base
+    rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
     normals = None
     F: np.ndarray | None
@@ -704,12 +715,13 @@ def make_case(
     mk, minfo = other_convention_markers(P, rng, convention=conv)
     Xf = _tf(A, X)
     Nf = None if normals is None else normals @ A[:3, :3].T / UNITS[units]
-    desc = _describe(kind, body, pose, out, units, up, len(Xf), F)
+    desc = _describe(kind_drawn, body, pose, out, units, up, len(Xf), F)
     return RealWorldCase(
-        seed=seed, kind=kind, V=Xf, F=F, normals=Nf, colors=None, units=units, up=up,
+        seed=seed, kind=kind_drawn, V=Xf, F=F, normals=Nf, colors=None, units=units, up=up,
         facing_deg=facing, to_file=A, truth=_tf(A, P),
         markers={k: _tf(A, v[None])[0] for k, v in mk.items()}, marker_info=minfo,
-        family=kind, description=desc, body_key=f"{seed}{'-touching' if touching else ''}",
+        family=kind_drawn, description=desc,
+        body_key=f"{seed}{'-touching' if touching else ''}{'-wide' if wide else ''}",
         params={"sex": body.sex, "body": body.params, "posture": pose, "output": out},
     )  # fmt: skip
 
@@ -735,7 +747,7 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    base = [k for k in sorted(KINDS) if k not in ("dense", "closed_booth")]
+    base = [k for k in sorted(KINDS) if k not in ("dense", "closed_booth", *WIDE_KINDS)]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:
@@ -775,10 +787,19 @@ def booth_cases(n: int = 40, start: int = 300) -> list[tuple[int, str]]:
     return [(s, "closed_booth") for s in range(start, start + n)]
 
 
+def wide_cases(n: int = 24, start: int = 500) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of bodies with the arms 60-90° from the body (T-pose capture,
+    :data:`WIDE_KINDS`), seeds ``start`` on (clear of the other sets), the three kinds in turn:
+    raw scans, closed meshes and point clouds, each in a random frame."""
+    kinds = list(WIDE_KINDS)
+    return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
+
+
 __all__ = [
     "HAIR_STYLES",
     "KINDS",
     "SUBSET_33",
+    "WIDE_KINDS",
     "RealWorldCase",
     "benchmark_cases",
     "booth_cases",
@@ -791,6 +812,7 @@ __all__ = [
     "make_case",
     "other_convention_markers",
     "raw_scan",
+    "wide_cases",
     "wind_arms_inward",
     "winding_occupancy",
 ]

@@ -135,3 +135,27 @@ def test_arms_spread_as_wide_as_the_body_is_tall(up):
     assert _mirror_gap(V, a, about=side) > 1.6 * _mirror_gap(V, side, about=a)
     fr = detect_frame(V)
     assert (fr.up, fr.units) == (up, "mm")
+
+
+def test_mirror_gap_finds_the_left_right_plane_of_a_turned_t_pose():
+    # a body with its arms out 85-90° (T-pose capture) is about as wide as tall; turned 40°
+    # about its up axis in the file, its arm span lies between two file axes. The left-right
+    # mirror plane is then 40° off the file axis: with turns of ±20° only its gap read 3-7×
+    # that of the body facing the axis (a raw T-pose scan turned ~30° was refused as "cannot
+    # tell which axis is up"); it must read about the same whichever way the body faces
+    from core.io.frame import _mirror_gap
+    from core.synth.realworld import off_model_body, posture
+    from core.synth.scanner_outputs import file_transform
+
+    body = off_model_body(np.random.default_rng([3, 101]))
+    P, _ = posture(body.V, np.random.default_rng([3, 102]), arm_range=(85.0, 90.0))
+    gaps = {}
+    for facing in (0.0, 40.0):
+        A = file_transform("m", "+x", facing, np.zeros(3))
+        V = P @ A[:3, :3].T
+        ext = np.ptp(V, axis=0)
+        side = 1 if ext[1] >= ext[2] else 2  # the horizontal axis nearer the arm span
+        gaps[facing] = (_mirror_gap(V, side, about=0), _mirror_gap(V, 0, about=side))
+        assert detect_frame(V).up == "+x"
+    assert gaps[40.0][0] < 1.5 * gaps[0.0][0]  # left-right: as symmetric turned as not
+    assert gaps[40.0][1] > 3.0 * gaps[40.0][0]  # head to foot: not symmetric

@@ -244,7 +244,7 @@ def test_a_heavy_body_is_searched_with_a_template_of_its_girth(monkeypatch):
 def test_a_poor_best_start_widens_the_near_tie():
     """Near-tied starts: within TIE_MARGIN of the best; where even the best start matches less
     than min_coverage of the template (heavy raw-63: arms 10° 1.239, right start 1.271), within
-    POOR_TIE_MARGIN. Never more than two."""
+    POOR_TIE_MARGIN. Never more than two standing the same way up."""
     from core.geometry import Similarity
     from core.matching.markerless import POOR_TIE_MARGIN, TIE_MARGIN, Start, near_tied
 
@@ -261,6 +261,30 @@ def test_a_poor_best_start_widens_the_near_tie():
     assert [s.label for s in near_tied(far, 0.4)] == ["a"]
     close = [good[0], start(1.0 + TIE_MARGIN / 2, 0.5, "b")]
     assert [s.label for s in near_tied(close, 0.4)] == ["a", "b"]
+
+
+def test_near_tied_adds_the_best_start_standing_the_other_way_up():
+    """closed_wide-501 (BMI 57, arms 76°): the two best starts stood head-down and the best
+    upright one trailed by 0.05 (within the poor margin): it is tried too, as a third
+    contender; not when beyond the margin, nor when the two already stand either way."""
+    from core.geometry import Similarity
+    from core.matching.markerless import POOR_TIE_MARGIN, TIE_MARGIN, Start, near_tied
+
+    down = np.diag([-1.0, -1.0, 1.0])
+
+    def start(score: float, coverage: float, label: str, head_down: bool) -> Start:
+        sim = Similarity(1.0, down if head_down else np.eye(3), np.zeros(3))
+        return Start(sim, {}, np.zeros(0), score, coverage, label)
+
+    gap = (TIE_MARGIN + POOR_TIE_MARGIN) / 2
+    poor = [start(1.3, 0.17, "a", True), start(1.301, 0.16, "b", True),
+            start(1.3 + gap, 0.23, "c", False), start(1.3 + gap, 0.2, "d", False)]  # fmt: skip
+    assert [s.label for s in near_tied(poor, 0.4)] == ["a", "b", "c"]
+    good = [start(1.0, 0.6, "a", False), start(1.01, 0.6, "b", False),
+            start(1.0 + gap, 0.5, "c", True)]  # fmt: skip
+    assert [s.label for s in near_tied(good, 0.4)] == ["a", "b"]  # beyond TIE_MARGIN
+    close = [good[0], start(1.0 + TIE_MARGIN / 2, 0.5, "c", True), good[1]]
+    assert [s.label for s in near_tied(close, 0.4)] == ["a", "c"]  # either way already
 
 
 def test_feet_fused_by_a_coarse_closed_mesh_stay_forward(tmp_path):
@@ -283,3 +307,28 @@ def test_feet_fused_by_a_coarse_closed_mesh_stay_forward(tmp_path):
         off = np.linalg.norm(res.vertices[m].mean(0) - truth[m].mean(0)) * 1000
         assert off < 40.0, (side, off)  # measured 10-12 mm (135 without the prior)
         assert res.report.quality.parts[side].foot_turn_deg < 20.0
+
+
+def test_arms_out_80_to_90_degrees_are_searched_from_a_wide_arm_start(tmp_path):
+    """raw_wide-509 (arms 80-90° out, a T-pose capture): from the usual arm starts (10/30/50°)
+    the search's best start left both arms 300-400 mm from the scan's and the fit failed; the
+    scan is wider than WIDE_ARMS_RATIO of its height, so the search also starts the arms at 80°,
+    and that start wins with the posed arms on the scan's arms. A scan with the arms down gets
+    no such start (no extra CPU)."""
+    import core.matching.markerless as ml
+    from core.io import load_scan
+    from core.registration.correspondence import ScanIndex
+    from core.synth.scanner_outputs import make_case
+
+    case = make_case(509, "raw_wide")
+    assert case.params["posture"]["arm_abduction"] >= 80.0
+    scan, _ = load_scan(case.write(tmp_path / "wide.ply"))
+    assert ml.width_ratio(scan) > ml.WIDE_ARMS_RATIO
+    assert ml.arm_hypotheses(scan) == ml.ARM_HYPOTHESES + ml.WIDE_ARM_HYPOTHESES
+    starts, scores = ml.search_starts(scan, ScanIndex(scan))
+    assert "arms 80°" in starts[0].label, starts[0].label
+    usual = min(s["score"] for s in scores if s.get("arms_deg", 0) in ml.ARM_HYPOTHESES)
+    assert starts[0].score < usual - ml.TIE_MARGIN  # clearly better, not a near tie
+    narrow, _ = _scan(np.eye(3))  # closed_lowres-2: arms ~25° out
+    assert ml.width_ratio(narrow) < ml.WIDE_ARMS_RATIO
+    assert ml.arm_hypotheses(narrow) == ml.ARM_HYPOTHESES

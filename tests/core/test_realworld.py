@@ -12,16 +12,18 @@ from scipy.spatial import cKDTree
 
 from core.geometry import MeshDistance
 from core.synth.bodies import random_body
-from core.synth.realworld import mesh_volume, off_model_body, posture
+from core.synth.realworld import WIDE_ARM_RANGE, mesh_volume, off_model_body, posture
 from core.synth.scanner_outputs import (
     KINDS,
     SUBSET_33,
     UNITS,
+    WIDE_KINDS,
     benchmark_cases,
     booth_cases,
     closed_mesh,
     heavy_cases,
     make_case,
+    wide_cases,
 )
 from core.synth.targets import load_targets
 from core.template import load_template
@@ -267,7 +269,8 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     assert V[V[:, 1] < 0.005, 0].max() > feet_x.max() + 0.05  # the plate reaches past the feet
     cases = benchmark_cases(40)
     assert len(cases) == 40 and len(set(cases)) == 40
-    assert {k for _, k in cases} == set(KINDS) - {"closed_booth"}  # booth: its own set
+    # booth and the wide-arms kinds: sets of their own
+    assert {k for _, k in cases} == set(KINDS) - {"closed_booth", *WIDE_KINDS}
 
 
 def test_voxel_m_is_for_closed_kinds_within_its_range():
@@ -295,3 +298,29 @@ def test_booth_meshes_are_issue_12s_closed_meshes():
     cases = booth_cases(40)
     assert len(set(cases)) == 40 and {k for _, k in cases} == {"closed_booth"}
     assert not {s for s, _ in cases} & {s for s, _ in benchmark_cases(40) + heavy_cases(20)}
+
+
+def test_wide_arms_cases_are_t_pose_captures_in_any_frame():
+    """The wide kinds: arms 60-90° from the body, delivered as their base kind in a random
+    frame; a set of its own (seeds clear of the others), and the other kinds' draws unchanged
+    by their addition (the same seed's body, another posture)."""
+    cases = wide_cases(24)
+    assert {k for _, k in cases} == set(WIDE_KINDS) and len(set(cases)) == 24
+    others = benchmark_cases(40) + heavy_cases(20) + booth_cases(40)
+    assert not {s for s, _ in cases} & {s for s, _ in others}
+    raw, closed, cloud = (
+        make_case(503, "raw_wide"),
+        make_case(504, "closed_wide"),
+        make_case(502, "cloud_wide"),
+    )
+    for c in (raw, closed, cloud):
+        assert WIDE_ARM_RANGE[0] <= c.params["posture"]["arm_abduction"] <= WIDE_ARM_RANGE[1] + 5
+        assert c.body_key.endswith("-wide") and c.family in WIDE_KINDS
+    assert raw.F is not None and raw.normals is not None
+    assert cloud.F is None and cloud.normals is None
+    und, dirc = _edge_uses(closed.F)
+    assert np.all(und == 2) and np.all(dirc == 1)  # closed, consistently wound
+    # the same seed's ordinary raw scan: the same body in another posture
+    plain = make_case(503, "raw")
+    assert plain.params["body"] == raw.params["body"]
+    assert plain.params["posture"]["arm_abduction"] <= 60.0 + 5
