@@ -21,8 +21,8 @@ of the same seed: one body) are compared vertex by vertex in the body's frame (m
 vertices, and without the hands, which a closed mesh turns into mittens). Results go to
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
-Usage: ``nice python -m bench.realworld [--cases N] [--markers] [--heavy | --booth | --wide]
-[--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
+Usage: ``nice python -m bench.realworld [--cases N] [--markers]
+[--heavy | --booth | --wide | --palms] [--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -273,10 +273,11 @@ def _run(args: tuple) -> dict[str, Any]:
 
 
 def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """closed_lowres vs raw fits of the same body (mm): mean vertex distance, all / no hands /
-    per quality part, split into its components across (``normal_mm``) and along
-    (``tangential_mm``) the surface, and the two fitted surfaces' distance whatever the
-    correspondence (``surface_mm``: area samples of each to the other's surface, both ways)."""
+    """closed_lowres vs raw (closed_palms vs raw_palms) fits of the same body (mm): mean vertex
+    distance, all / no hands / per quality part, split into its components across
+    (``normal_mm``) and along (``tangential_mm``) the surface, and the two fitted surfaces'
+    distance whatever the correspondence (``surface_mm``: area samples of each to the other's
+    surface, both ways)."""
     from core.geometry import MeshDistance, vertex_normals
     from core.registration.quality import part_labels
     from core.template import load_template
@@ -288,9 +289,10 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     by = {(r["seed"], r["kind"]): r for r in rows}
     out = []
     for (seed, kind), r in sorted(by.items()):
-        if kind != "closed_lowres" or (seed, "raw") not in by:
+        twin = {"closed_lowres": "raw", "closed_palms": "raw_palms"}.get(kind)
+        if twin is None or (seed, twin) not in by:
             continue
-        s = by[(seed, "raw")]
+        s = by[(seed, twin)]
         if "_fit_body" not in r or "_fit_body" not in s:
             out.append({"seed": seed, "mean_mm": float("nan"), "no_hands_mm": float("nan")})
             continue
@@ -539,6 +541,12 @@ def main(argv: list[str] | None = None) -> int:
         help="--cases bodies with the arms 60-90° out (T-pose capture: raw scans, closed "
         "meshes, point clouds in turn) instead of the varied set",
     )
+    ap.add_argument(
+        "--palms",
+        action="store_true",
+        help="--cases bodies with both palms turned 45-100° forwards or backwards (closed_palms/"
+        "raw_palms twins) instead of the varied set",
+    )
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
     ap.add_argument("--from-partial", metavar="JSONL", help="print the report of a partial run")
     args = ap.parse_args(argv)
@@ -556,12 +564,15 @@ def main(argv: list[str] | None = None) -> int:
         benchmark_cases,
         booth_cases,
         heavy_cases,
+        palm_cases,
         wide_cases,
     )
 
-    if args.heavy + args.booth + args.wide > 1:
-        ap.error("--heavy, --booth and --wide are different sets: choose one")
-    if args.booth:
+    if args.heavy + args.booth + args.wide + args.palms > 1:
+        ap.error("--heavy, --booth, --wide and --palms are different sets: choose one")
+    if args.palms:
+        cases = palm_cases(args.cases)
+    elif args.booth:
         cases = booth_cases(args.cases)
     elif args.wide:
         cases = wide_cases(args.cases)
@@ -588,6 +599,7 @@ def main(argv: list[str] | None = None) -> int:
     stem = (
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
+        f"{'-palms' if args.palms else ''}"
         f"{'-markers' if args.markers else ''}"
     )
     partial = RESULTS / f"{stem}.partial.jsonl"  # one line per finished case, while running

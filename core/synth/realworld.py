@@ -38,7 +38,9 @@ lowered until a forearm or hand meets the torso, hips or thighs within 2 mm: a c
 a handle), feet 0–40 cm apart (gap between the medial malleoli), slight lean (spine ±5° forward, ±3°
 sideways), neck flexion 0–20°, forward head (neck flexed 0–15° and the head counter-rotated by as
 much), head yaw ±15° and roll ±5°. The wide-arms protocols (T-pose and near it: animation and
-photogrammetry capture) draw the arms 60–90° from the body instead (:data:`WIDE_ARM_RANGE`).
+photogrammetry capture) draw the arms 60–90° from the body instead (:data:`WIDE_ARM_RANGE`); the
+turned-palms protocols turn both forearms 45–100° about their own axes, palms forwards or backwards
+(:data:`PALM_TWIST_RANGE`).
 """
 
 from __future__ import annotations
@@ -323,6 +325,10 @@ POSTURE_RANGES = {
 #: animation and photogrammetry rigs and some handheld-scan protocols (``arm_range=`` of
 #: :func:`posture`; :func:`core.synth.scanner_outputs.make_case`'s ``*_wide`` kinds).
 WIDE_ARM_RANGE = (60.0, 90.0)
+#: Forearm twists (degrees, each side, either sign: palms turned forwards or backwards from the
+#: rest pose's, towards the thighs) of the turned-palms protocols (``core.synth.scanner_outputs``
+#: ``PALM_KINDS``): anatomical position (palms forward) and protocols that ask for the palms back.
+PALM_TWIST_RANGE = (45.0, 100.0)
 _X, _Y, _Z = np.eye(3)
 
 
@@ -341,6 +347,7 @@ def posture(
     touching: bool = False,
     fist: bool | None = None,
     arm_range: tuple[float, float] | None = None,
+    forearm_twist: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[np.ndarray, dict]:
     """Pose a rest-pose body the way a real scanning protocol would (see the module docstring).
 
@@ -353,6 +360,10 @@ def posture(
     arm_range : (low, high) degrees to draw the arm abduction from instead of
         ``POSTURE_RANGES["arm_abduction"]`` (e.g. :data:`WIDE_ARM_RANGE`); the draws of every
         other angle are the same.
+    forearm_twist : (left, right) degrees each forearm (and its hand) is turned about its own
+        axis from the rest pose's palms towards the thighs (thumbs forward), the right mirrored:
+        + turns the palms backwards (thumbs inwards), − forwards (thumbs out, the anatomical
+        position); see :data:`PALM_TWIST_RANGE`. Not drawn from ``rng``.
 
     Returns
     -------
@@ -389,7 +400,10 @@ def posture(
             u = J[rig.index("lowerarm01" + side)] - J[rig.index("upperarm01" + side)]
             d = J[rig.index("wrist" + side)] - J[rig.index("lowerarm01" + side)]
             flex = max(ang["elbow_flexion"] + s * ang["elbow_flexion_asym"], 0.0)
-            rot["lowerarm01" + side] = axis_angle(np.cross(u, d), np.radians(flex - rest_flex))
+            tw = forearm_twist[0] if side == ".L" else -forearm_twist[1]
+            rot["lowerarm01" + side] = axis_angle(
+                np.cross(u, d), np.radians(flex - rest_flex)
+            ) @ axis_angle(d / np.linalg.norm(d), np.radians(tw))
             rot["upperleg01" + side] = axis_angle(_Z, s * np.radians(spread))
             rot["foot" + side] = axis_angle(_Z, -s * np.radians(spread))  # sole back on the floor
             rot.update(finger_rotations(J, tails, side, fist, curl, rig=rig))
@@ -427,6 +441,7 @@ def posture(
         ang["touching"] = True
     P = pose_body(V, rotations(a_l, a_r), rig=rig, joints=J)
     P[:, 1] -= P[:, 1].min()
+    ang["forearm_twist_L"], ang["forearm_twist_R"] = (float(t) for t in forearm_twist)
     ang["rest_arm_abduction"] = rest
     ang["rest_elbow_flexion"] = rest_flex
     ang["leg_spread"] = spread
@@ -442,6 +457,7 @@ def joint_world(V: np.ndarray, rotations: dict[str, np.ndarray]) -> np.ndarray:
 
 
 __all__ = [
+    "PALM_TWIST_RANGE",
     "POSTURE_RANGES",
     "WIDE_ARM_RANGE",
     "RealBody",

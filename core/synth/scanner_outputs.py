@@ -57,7 +57,13 @@ from scipy.spatial import cKDTree
 
 from core.geometry import MeshDistance
 from core.io.frame import rotation_for_up
-from core.synth.realworld import WIDE_ARM_RANGE, mesh_volume, off_model_body, posture
+from core.synth.realworld import (
+    PALM_TWIST_RANGE,
+    WIDE_ARM_RANGE,
+    mesh_volume,
+    off_model_body,
+    posture,
+)
 from core.synth.scanner import ScanConfig, simulate_scan, vertex_normals
 from core.template import load_template
 
@@ -81,16 +87,23 @@ KINDS = {
     "raw_wide": "raw multi-view range scan, arms 60-90° from the body (T-pose capture)",
     "closed_wide": "closed mesh (5-7 mm grid), arms 60-90° from the body (T-pose capture)",
     "cloud_wide": "point cloud of a raw scan, no normals, arms 60-90° from the body",
+    "raw_palms": "raw multi-view range scan, palms turned 45-100° forwards or backwards",
+    "closed_palms": "closed hole-filled mesh, 8-20 k vertices, palms turned 45-100°",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
 WIDE_KINDS = {"raw_wide": "raw", "closed_wide": "closed", "cloud_wide": "cloud"}
+#: The turned-palms kinds (both forearms turned about their axes,
+#: :data:`core.synth.realworld.PALM_TWIST_RANGE`) and the kind each is delivered as; only in
+#: :func:`palm_cases` (``bench.realworld --palms``).
+PALM_KINDS = {"raw_palms": "raw", "closed_palms": "closed_lowres"}
 
 #: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
 #: fixed, so that a kind added later leaves every earlier case as it was.
 _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
+    "raw_palms", "closed_palms",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -651,10 +664,18 @@ def make_case(
     touching = kind == "closed_touching" or (booth and brng.random() < 0.4)
     wide = kind in WIDE_KINDS
     arm_range = WIDE_ARM_RANGE if wide else None
+    twist = (0.0, 0.0)
+    if kind in PALM_KINDS:  # the same turn for both twins of a body
+        trng = np.random.default_rng([seed, 107])
+        t = float(trng.choice([-1.0, 1.0]) * trng.uniform(*PALM_TWIST_RANGE))
+        a = float(trng.uniform(-10.0, 10.0))
+        twist = (t + a, t - a)
     P, pose = posture(
-        body.V, np.random.default_rng([seed, 102]), touching=touching, arm_range=arm_range
-    )
-    kind_drawn, kind = kind, WIDE_KINDS.get(kind, kind)  # a wide kind is delivered as its base
+        body.V, np.random.default_rng([seed, 102]), touching=touching, arm_range=arm_range,
+        forearm_twist=twist,
+    )  # fmt: skip
+    kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
+    kind = WIDE_KINDS.get(kind, PALM_KINDS.get(kind, kind))
     rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
     normals = None
@@ -721,7 +742,8 @@ def make_case(
         facing_deg=facing, to_file=A, truth=_tf(A, P),
         markers={k: _tf(A, v[None])[0] for k, v in mk.items()}, marker_info=minfo,
         family=kind_drawn, description=desc,
-        body_key=f"{seed}{'-touching' if touching else ''}{'-wide' if wide else ''}",
+        body_key=f"{seed}{'-touching' if touching else ''}{'-wide' if wide else ''}"
+        f"{'-palms' if any(twist) else ''}",
         params={"sex": body.sex, "body": body.params, "posture": pose, "output": out},
     )  # fmt: skip
 
@@ -738,6 +760,10 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
         bits.append(f"arms {pose['arm_abduction']:.0f}°")
     bits.append(f"elbows {pose['elbow_flexion']:.0f}°")
     bits.append("fists" if pose["fist"] else "open hands")
+    if pose.get("forearm_twist_L") or pose.get("forearm_twist_R"):
+        bits.append(
+            f"forearms turned {pose['forearm_twist_L']:+.0f}°/{pose['forearm_twist_R']:+.0f}°"
+        )
     bits.append(f"feet {pose['feet_gap_m'] * 100:.0f} cm apart")
     bits.append(f"{n:,} {'vertices' if F is not None else 'points'}, {units}, up {up}")
     return ", ".join(bits)
@@ -747,7 +773,9 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    base = [k for k in sorted(KINDS) if k not in ("dense", "closed_booth", *WIDE_KINDS)]
+    base = [
+        k for k in sorted(KINDS) if k not in ("dense", "closed_booth", *WIDE_KINDS, *PALM_KINDS)
+    ]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:
@@ -795,9 +823,20 @@ def wide_cases(n: int = 24, start: int = 500) -> list[tuple[int, str]]:
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
 
+def palm_cases(n: int = 20, start: int = 600) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of bodies with both palms turned 45-100° forwards or backwards
+    (:data:`PALM_KINDS`), seeds ``start`` on (clear of the other sets), each body as a
+    ``closed_palms`` and a ``raw_palms`` twin."""
+    out: list[tuple[int, str]] = []
+    for seed in range(start, start + (n + 1) // 2):
+        out += [(seed, "closed_palms"), (seed, "raw_palms")]
+    return out[:n]
+
+
 __all__ = [
     "HAIR_STYLES",
     "KINDS",
+    "PALM_KINDS",
     "SUBSET_33",
     "WIDE_KINDS",
     "RealWorldCase",
@@ -811,6 +850,7 @@ __all__ = [
     "heavy_cases",
     "make_case",
     "other_convention_markers",
+    "palm_cases",
     "raw_scan",
     "wide_cases",
     "wind_arms_inward",

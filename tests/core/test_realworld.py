@@ -12,9 +12,16 @@ from scipy.spatial import cKDTree
 
 from core.geometry import MeshDistance
 from core.synth.bodies import random_body
-from core.synth.realworld import WIDE_ARM_RANGE, mesh_volume, off_model_body, posture
+from core.synth.realworld import (
+    PALM_TWIST_RANGE,
+    WIDE_ARM_RANGE,
+    mesh_volume,
+    off_model_body,
+    posture,
+)
 from core.synth.scanner_outputs import (
     KINDS,
+    PALM_KINDS,
     SUBSET_33,
     UNITS,
     WIDE_KINDS,
@@ -23,6 +30,7 @@ from core.synth.scanner_outputs import (
     closed_mesh,
     heavy_cases,
     make_case,
+    palm_cases,
     wide_cases,
 )
 from core.synth.targets import load_targets
@@ -270,7 +278,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     cases = benchmark_cases(40)
     assert len(cases) == 40 and len(set(cases)) == 40
     # booth and the wide-arms kinds: sets of their own
-    assert {k for _, k in cases} == set(KINDS) - {"closed_booth", *WIDE_KINDS}
+    assert {k for _, k in cases} == set(KINDS) - {"closed_booth", *WIDE_KINDS, *PALM_KINDS}
 
 
 def test_voxel_m_is_for_closed_kinds_within_its_range():
@@ -324,3 +332,42 @@ def test_wide_arms_cases_are_t_pose_captures_in_any_frame():
     plain = make_case(503, "raw")
     assert plain.params["body"] == raw.params["body"]
     assert plain.params["posture"]["arm_abduction"] <= 60.0 + 5
+
+
+def test_turned_palms_turn_only_the_forearms_and_hands():
+    """forearm_twist turns each forearm about its axis: + palms backwards (thumbs in), −
+    forwards (thumbs out); (0, 0) is the usual posture to the bit, and nothing above the elbows
+    moves. The palm kinds are twins (closed and raw, one turn per body), a set of their own."""
+    tpl = load_template()
+    lm = tpl.landmarks
+    body = off_model_body(np.random.default_rng([3, 101]))
+    usual, _ = posture(body.V, np.random.default_rng([3, 102]))
+    same, _ = posture(body.V, np.random.default_rng([3, 102]), forearm_twist=(0.0, 0.0))
+    assert np.array_equal(usual, same)
+    arms = np.zeros(len(usual), dtype=bool)
+    for part in ("forearm_L", "forearm_R", "hand_L", "hand_R", "upper_arm_L", "upper_arm_R"):
+        arms |= tpl.part_mask(part)
+    for twist, thumbs_out in ((90.0, False), (-90.0, True)):
+        P, ang = posture(body.V, np.random.default_rng([3, 102]), forearm_twist=(twist, twist))
+        assert ang["forearm_twist_L"] == ang["forearm_twist_R"] == twist
+        assert np.array_equal(P[~arms], usual[~arms])
+        for x in "LR":
+            out = np.sign(P[lm[f"Dactylion_{x}"], 0])  # the hand's side of the body
+            thumb = P[lm[f"Radial_styloid_{x}"]] - P[lm[f"Ulnar_styloid_{x}"]]
+            rest = usual[lm[f"Radial_styloid_{x}"]] - usual[lm[f"Ulnar_styloid_{x}"]]
+            assert rest[2] > 0.02  # thumbs forward at rest
+            assert (thumb[0] * out > 0.02) == thumbs_out and abs(thumb[0]) > 0.02, (twist, x)
+    cases = palm_cases(20)
+    assert {k for _, k in cases} == set(PALM_KINDS) and len(set(cases)) == 20
+    others = benchmark_cases(40) + heavy_cases(20) + booth_cases(40) + wide_cases(24)
+    assert not {s for s, _ in cases} & {s for s, _ in others}
+    raw, closed = make_case(600, "raw_palms"), make_case(600, "closed_palms")
+    assert raw.body_key == closed.body_key and raw.body_key.endswith("-palms")
+    assert raw.params["posture"] == closed.params["posture"]
+    tw = raw.params["posture"]["forearm_twist_L"], raw.params["posture"]["forearm_twist_R"]
+    for t in tw:
+        assert PALM_TWIST_RANGE[0] - 10 <= abs(t) <= PALM_TWIST_RANGE[1] + 10
+    assert "forearms turned" in raw.description
+    und, dirc = _edge_uses(closed.F)
+    assert np.all(und == 2) and np.all(dirc == 1)
+    assert make_case(600, "raw").params["posture"]["forearm_twist_L"] == 0.0
