@@ -3,6 +3,7 @@ of core.synth.scanner_outputs: the feet tell front from back, whatever the facin
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -332,3 +333,34 @@ def test_arms_out_80_to_90_degrees_are_searched_from_a_wide_arm_start(tmp_path):
     narrow, _ = _scan(np.eye(3))  # closed_lowres-2: arms ~25° out
     assert ml.width_ratio(narrow) < ml.WIDE_ARMS_RATIO
     assert ml.arm_hypotheses(narrow) == ml.ARM_HYPOTHESES
+
+
+def test_a_hand_fitted_palm_over_is_refitted_from_a_twisted_forearm(tmp_path):
+    """closed_palms-606 (palms turned backwards 76-84°, open hands): the first shape-space fit
+    laid the left hand with its palm the wrong way round (centroid 34 mm off the truth's, hand
+    suspect). Its hand matches the scan poorly (hand_mismatch > POOR_HAND), so the body is fitted
+    again from that fit with the forearm twisted either way; the twist that matches the hand
+    (and the other does not) is kept."""
+    import core.matching.markerless as ml
+    from core.io import load_scan
+    from core.synth.scanner_outputs import make_case
+    from core.template import load_template
+
+    tpl = load_template()
+    case = make_case(606, "closed_palms")
+    assert case.params["posture"]["forearm_twist_L"] > 70.0 and not case.params["posture"]["fist"]
+    scan, _ = load_scan(case.write(tmp_path / "palms.ply"))
+    res = ml.fit_markerless(scan)
+    truth = scan.frame.to_canonical(case.truth)
+    assert "L twisted" in res.report.notes[-1], res.report.notes[-1]
+    hand = tpl.part_mask("hand_L")
+    off = np.linalg.norm(res.vertices[hand].mean(0) - truth[hand].mean(0)) * 1000
+    assert off < 20.0, off  # measured 13 mm (34 without the twisted refit)
+    assert res.report.quality.parts["hand_L"].quality == "good"
+    # the twist turns the palm about the forearm and back; the right side is mirrored
+    prior = res.body_prior
+    there = ml.twisted_pose(prior, "LR", 90.0)
+    back = ml.twisted_pose(replace(prior, pose=there), "LR", -90.0)
+    for b in ("lowerarm01.L", "lowerarm01.R"):
+        assert np.allclose(back[b], prior.pose.get(b, np.eye(3)), atol=1e-12)
+    assert not np.allclose(there["lowerarm01.L"], prior.pose.get("lowerarm01.L", np.eye(3)))
