@@ -24,6 +24,7 @@ from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
 from core.registration.correspondence import ScanIndex
 from core.registration.fit import (
+    HAND_LENGTH_NOTE,
     RETRIES,
     FitResult,
     PriorRestart,
@@ -792,9 +793,10 @@ def fit_markerless(
         rep = res.report
         n_warn = sum(w.startswith("marker ") for w in rep.warnings)
         rep.warnings = [w for w in rep.warnings if not w.startswith("marker ")]
-        rep.notes = notes + [
-            n for n in rep.notes if n not in notes and not n.startswith("body prior")
-        ]
+        later = [n for n in rep.notes if n not in notes and not n.startswith("body prior")]
+        if any(n.startswith(HAND_LENGTH_NOTE) for n in later):  # the rounds' hands stand
+            notes = [n for n in notes if not n.startswith(HAND_LENGTH_NOTE)]
+        rep.notes = notes + later
         rep.notes.append(
             f"markerless refinement: {rounds} body-prior rounds with the landmarks predicted by "
             f"the previous round as soft markers ({n_warn} left out as far from the body)"

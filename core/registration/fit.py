@@ -408,6 +408,10 @@ class InitialBody:
     prior: PriorFit | None = None
 
 
+#: How a fit's report note on the hands' lengths set by the body prior begins.
+HAND_LENGTH_NOTE = "hand length set"
+
+
 def initial_body(
     index: ScanIndex,
     ops: TemplateOperators,
@@ -478,7 +482,7 @@ def initial_body(
     )
     if prior.hand_lengths:
         report.notes.append(
-            "hand length set (the fingers take no data): "
+            f"{HAND_LENGTH_NOTE} (the fingers take no data): "
             + "; ".join(h.note() for h in prior.hand_lengths)
         )
     # markers the fitted body cannot reach and their neighbours contradict: weighed down
