@@ -9,9 +9,11 @@ measure stature and heads from our bodies, so hair must not count.
 How (:func:`find_hair`, called by ``core.matching.markerless`` on its first body-prior fit):
 
 - *Hair* is scan points outside that body (fitted to all the data) by more than
-  :data:`HAIR_OUT_M`, linked into clusters (points within :data:`HAIR_LINK_M`), a cluster counting
-  when it stands at least :data:`HAIR_THICK_M` off the body somewhere over the hair-bearing scalp
-  (:func:`scalp_mask`) and holds :data:`HAIR_MIN_POINTS` points: a volume, not noise or a bump.
+  :data:`HAIR_OUT_M`, linked into clusters (points within :data:`HAIR_LINK_M`, and the scan's
+  triangle edges: booth meshes draw a bun with vertices farther apart than that), a cluster
+  counting when it stands at least :data:`HAIR_THICK_M` off the body somewhere over the
+  hair-bearing scalp (:func:`scalp_mask`) and holds :data:`HAIR_MIN_POINTS` points: a volume,
+  not noise or a bump.
   Faces and chins are never seeds; a bald or big head lies on a body fitted to it (scan points
   over the scalp of hairless cases stand at most 5-10 mm off the first body, 18 mm where its
   head was misplaced), and a body fitted 1 % small labels nothing (tested). Hair is looked for
@@ -146,9 +148,13 @@ def _cluster_limits(P: np.ndarray) -> tuple[float, int]:
     return link, max(least, HAIR_MIN_POINTS_SPARSE)
 
 
-def label_hair(P: np.ndarray, X: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, float]:
+def label_hair(
+    P: np.ndarray, X: np.ndarray, F: np.ndarray, scan_F: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Hair among scan points P (n, 3) around a body X (13380, 3; triangles F) fitted to all of
-    them (the module's rule): (n,) bool and the largest offset of a hair point (metres)."""
+    them (the module's rule): (n,) bool and the largest offset of a hair point (metres).
+    ``scan_F`` (m, 3): the scan's triangles, whose edges link points too (a coarse hair
+    volume's vertices lie farther apart than the link distance)."""
     tpl = load_template()
     scalp = scalp_mask()
     head = tpl.part_mask("head")
@@ -169,6 +175,8 @@ def label_hair(P: np.ndarray, X: np.ndarray, F: np.ndarray) -> tuple[np.ndarray,
     if len(ids) < min_points:
         return out, 0.0
     pairs = cKDTree(P[ids]).query_pairs(link, output_type="ndarray")
+    if scan_F is not None and len(scan_F):
+        pairs = np.vstack([pairs, _edges_among(scan_F, ids, len(P))])
     G = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(ids),) * 2)
     _, lab = connected_components(G, directed=False)
     o, on_scalp = off[cand], scalp[nn[cand]]
@@ -179,11 +187,20 @@ def label_hair(P: np.ndarray, X: np.ndarray, F: np.ndarray) -> tuple[np.ndarray,
     return out, float(o[hair].max()) if hair.any() else 0.0
 
 
+def _edges_among(scan_F: np.ndarray, ids: np.ndarray, n: int) -> np.ndarray:
+    """(e, 2) the edges of triangles ``scan_F`` (m, 3) over n points whose both ends are among
+    ``ids`` (k,), as positions in ``ids``."""
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[ids] = np.arange(len(ids))
+    E = pos[np.vstack([scan_F[:, [0, 1]], scan_F[:, [1, 2]], scan_F[:, [2, 0]]])]
+    return E[(E >= 0).all(axis=1)]
+
+
 def find_hair(scan: Scan, body: np.ndarray) -> Hair:
     """Hair on ``scan`` (canonical metres) around a body ``body`` (13380, 3, template order)
     fitted to all of it (:func:`label_hair`), and the scan without it."""
     F = np.asarray(load_template().F, dtype=np.int64)
-    hair, max_out = label_hair(np.asarray(scan.V, dtype=np.float64), body, F)
+    hair, max_out = label_hair(np.asarray(scan.V, dtype=np.float64), body, F, scan.F)
     if not hair.any():
         return Hair(hair, 0.0, scan)
     return Hair(hair, max_out, without(scan, hair))
