@@ -34,7 +34,7 @@ from core.registration.fit import (
 )
 from core.registration.hand_length import free_hand_ends, scanned_hand_roundness
 from core.registration.initialization import Similarity
-from core.registration.quality import THRESHOLDS, hand_body_gaps, hand_tip_gap
+from core.registration.quality import THRESHOLDS, feet_apart, hand_body_gaps, hand_tip_gap
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
     BONE_PRIOR,
@@ -564,6 +564,13 @@ def twisted_pose(prior: PriorFit, sides: str, twist_deg: float) -> dict[str, np.
     return pose
 
 
+#: ``feet_apart_m`` (:func:`core.registration.quality.feet_apart`) below which the first fit's
+#: legs are crossed and :func:`fit_markerless` fits again from straight legs.
+CROSSED_FEET_M = 0.0
+#: The rig's leg bones (without their ``.L``/``.R``) that the uncrossed refit starts at rest.
+LEG_BONES = ("upperleg01", "upperleg02", "lowerleg01", "lowerleg02", "foot")
+
+
 #: The quality retries (:data:`core.registration.fit.RETRIES`) of the last soft-marker round. Its
 #: markers are the landmarks the previous round predicts, on every part: another arm start is
 #: pulled back by the arm's and hand's landmarks, and trusting them fully pulls the body back to
@@ -737,6 +744,26 @@ def fit_markerless(
         base = sum(own[x] for x in poor)
         if best[0] < base - HAND_TWIST_MARGIN and best[0] < worst - HAND_TWIST_MARGIN:
             _, start, res = best
+    # legs crossed (each foot on the other's data; closed_booth-328, feet 1 cm apart, a heavy
+    # body's fused thighs: feet 97/105 mm off): fitted again from that fit with the legs'
+    # bones at rest, kept where the legs come apart and it scores no worse than the tie margin.
+    # A whole shape-space fit: a quick one from there left raw_palms-605's right foot 449 mm
+    # off (its score better all the same: the left leg came right), and the round kept it
+    prior = res.body_prior
+    if rounds and prior is not None and feet_apart(res.vertices) < CROSSED_FEET_M:
+        pose = {b: R for b, R in prior.pose.items() if b.split(".")[0] not in LEG_BONES}
+        st = replace(
+            start, similarity=prior.similarity, pose=pose, coefficients=prior.coefficients,
+            label=f"{start.label}, refitted with the legs uncrossed",
+        )  # fmt: skip
+        r_st = first_fit(st, scan, index)
+        sample = scan_sample(scan, 12000)
+        before = two_way_score(index, res.vertices, body_ids, sample)
+        after = two_way_score(index, r_st.vertices, body_ids, sample)
+        apart = feet_apart(r_st.vertices)
+        scores.append({"stage": "legs", "score": after, "crossed": before, "feet_apart_m": apart})
+        if apart >= CROSSED_FEET_M and after < before + TIE_MARGIN:
+            start, res = st, r_st
     best_cov = start.coverage
     low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     notes = list(res.report.notes)
