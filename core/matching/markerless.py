@@ -18,11 +18,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.errors import FitError
-from core.geometry import area_samples, vertex_normals
+from core.geometry import area_samples
 from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
-from core.registration.correspondence import ScanIndex
+from core.registration.correspondence import (
+    MIN_TURNED_NORMALS,
+    ScanIndex,
+    normals_against_body,
+)
 from core.registration.fit import (
     HAND_LENGTH_NOTE,
     RETRIES,
@@ -768,7 +772,7 @@ def fit_markerless(
     low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     notes = list(res.report.notes)
     if rounds and scan.F is None:
-        turned = normals_against_body(scan, res.vertices)
+        turned = normals_against_body(scan, res.vertices, load_template().F)
         if turned.sum() >= MIN_TURNED_NORMALS:
             scan.normals = np.where(turned[:, None], -scan.normals, scan.normals)
             index = ScanIndex(scan)
@@ -849,27 +853,6 @@ def fit_markerless(
             f"{res.report.scan_to_fit_mean_m * 1000:.1f} mm mean)"
         )
     return res
-
-
-#: A point within this distance (metres) of the first fitted body whose normal points against
-#: the body's (dot below :data:`AGAINST_BODY_DOT`) is turned (:func:`normals_against_body`).
-NORMAL_CHECK_M = 0.05
-AGAINST_BODY_DOT = -0.5
-#: Fewer turned points than this are left as estimated (noise, thin gaps).
-MIN_TURNED_NORMALS = 200
-
-
-def normals_against_body(scan: Scan, X: np.ndarray) -> np.ndarray:
-    """(n,) bool: the scan's points whose normal points into the body ``X`` (13380, 3) fitted to
-    them: within :data:`NORMAL_CHECK_M` of its nearest vertex, against that vertex's normal
-    (dot < :data:`AGAINST_BODY_DOT`). A point cloud's normals are estimated (PCA) and oriented by
-    propagation over the points, which can turn a whole limb over (``bench.realworld --wide``:
-    cloud_wide-505/511/517's left leg, 62-99 % of its points, flipped at the crotch); the data
-    term then finds no compatible points there (the left foot 26-63 mm off, ``failed``)."""
-    N_body = vertex_normals(X, np.asarray(load_template().F, dtype=np.int64))
-    d, nearest = cKDTree(X).query(scan.V, workers=KD_WORKERS)
-    dots = np.einsum("ij,ij->i", scan.normals, N_body[nearest])
-    return (d < NORMAL_CHECK_M) & (dots < AGAINST_BODY_DOT)
 
 
 #: A hand of the first shape-space fit whose fingertips (quality figure ``hand_tip_gap_m``) are

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from core.geometry import vertex_normals
 from core.scan import Scan
 from core.threads import KD_WORKERS
 
@@ -171,3 +172,26 @@ class ScanIndex:
         """Distance (n,) from each of X (n, 3) to the nearest scan point."""
         d, _ = self.tree.query(X, k=1, workers=KD_WORKERS)
         return d
+
+
+#: A point within this distance (metres) of the first fitted body whose normal points against
+#: the body's (dot below :data:`AGAINST_BODY_DOT`) is turned (:func:`normals_against_body`).
+NORMAL_CHECK_M = 0.05
+AGAINST_BODY_DOT = -0.5
+#: Fewer turned points than this are left as estimated (noise, thin gaps; most clouds' hands
+#: turn 0.7-1.2 k points).
+MIN_TURNED_NORMALS = 200
+
+
+def normals_against_body(scan: Scan, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(n,) bool: the scan's points whose normal points into the body ``X`` (13380, 3) fitted to
+    them: within :data:`NORMAL_CHECK_M` of its nearest vertex, against that vertex's normal
+    (dot < :data:`AGAINST_BODY_DOT`); F (m, 3): the body's triangles. A point cloud's normals
+    are estimated (PCA) and oriented by propagation over the points, which can turn a whole limb
+    over (``bench.realworld --wide``: cloud_wide-505/511/517's left leg, 62-99 % of its points,
+    flipped at the crotch); the data term then finds no compatible points there (the left foot
+    26-63 mm off, ``failed``)."""
+    N_body = vertex_normals(X, np.asarray(F, dtype=np.int64))
+    d, nearest = cKDTree(X).query(scan.V, workers=KD_WORKERS)
+    dots = np.einsum("ij,ij->i", scan.normals, N_body[nearest])
+    return (d < NORMAL_CHECK_M) & (dots < AGAINST_BODY_DOT)

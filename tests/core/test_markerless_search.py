@@ -404,6 +404,7 @@ def test_normals_a_point_cloud_turned_over_on_a_leg_are_turned_back(tmp_path):
     import core.matching.markerless as ml
     from core.geometry import vertex_normals
     from core.io import load_scan
+    from core.registration.correspondence import normals_against_body
     from core.synth.scanner_outputs import make_case
     from core.template import load_template
 
@@ -416,7 +417,7 @@ def test_normals_a_point_cloud_turned_over_on_a_leg_are_turned_back(tmp_path):
     nearest = cKDTree(truth).query(scan.V)[1]
     N_true = vertex_normals(truth, np.asarray(tpl.F, np.int64))[nearest]
     wrong = np.einsum("ij,ij->i", scan.normals, N_true) < 0
-    turned = ml.normals_against_body(scan, truth)
+    turned = normals_against_body(scan, truth, tpl.F)
     assert wrong.sum() > 20_000  # the flipped leg (measured 30 k points)
     assert (turned & wrong).sum() > 0.9 * wrong.sum()
     assert (turned & ~wrong).sum() < 0.002 * len(wrong)
