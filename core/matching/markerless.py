@@ -38,7 +38,13 @@ from core.registration.fit import (
 )
 from core.registration.hand_length import free_hand_ends, scanned_hand_roundness
 from core.registration.initialization import Similarity
-from core.registration.quality import THRESHOLDS, feet_apart, hand_body_gaps, hand_tip_gap
+from core.registration.quality import (
+    THRESHOLDS,
+    arm_symmetry,
+    feet_apart,
+    hand_body_gaps,
+    hand_tip_gap,
+)
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
     BONE_PRIOR,
@@ -575,6 +581,20 @@ CROSSED_FEET_M = 0.0
 LEG_BONES = ("upperleg01", "upperleg02", "lowerleg01", "lowerleg02", "foot")
 
 
+#: The rig's arm bones (without ``.L``/``.R``) that the mirrored-arm refit poses as the other
+#: side's, and the reflection through the body's sagittal plane (the template's left is +x).
+ARM_BONES = ("clavicle", "upperarm01", "lowerarm01", "wrist")
+MIRROR_X = np.diag([-1.0, 1.0, 1.0])
+
+
+def arm_reach(X: np.ndarray, side: str) -> float:
+    """Length (metres) of arm ``side`` of the body ``X`` (13380, 3): Acromion -> Radiale ->
+    Radial_styloid."""
+    L = load_template().landmarks
+    a, e, w = (X[L[f"{n}_{side}"]] for n in ("Acromion", "Radiale", "Radial_styloid"))
+    return float(np.linalg.norm(e - a) + np.linalg.norm(w - e))
+
+
 #: The quality retries (:data:`core.registration.fit.RETRIES`) of the last soft-marker round. Its
 #: markers are the landmarks the previous round predicts, on every part: another arm start is
 #: pulled back by the arm's and hand's landmarks, and trusting them fully pulls the body back to
@@ -767,6 +787,32 @@ def fit_markerless(
         apart = feet_apart(r_st.vertices)
         scores.append({"stage": "legs", "score": after, "crossed": before, "feet_apart_m": apart})
         if apart >= CROSSED_FEET_M and after < before + TIE_MARGIN:
+            start, res = st, r_st
+    # one arm stretched along its data (heavy raw-102: the left arm 1.28x the right's, its
+    # hand on the thigh 146 mm off): fitted again from that fit with that arm posed as the other
+    # one, mirrored; kept where the arms come closer in length within the tie margin
+    prior = res.body_prior
+    sym = arm_symmetry(res.vertices) if rounds and prior is not None else 1.0
+    if prior is not None and sym > THRESHOLDS["arm_symmetry"].suspect:
+        long, short = (
+            ("L", "R")
+            if arm_reach(res.vertices, "L") > arm_reach(res.vertices, "R")
+            else ("R", "L")
+        )
+        pose = dict(prior.pose)
+        for b in ARM_BONES:
+            pose[f"{b}.{long}"] = MIRROR_X @ prior.pose.get(f"{b}.{short}", np.eye(3)) @ MIRROR_X
+        st = replace(
+            start, similarity=prior.similarity, pose=pose, coefficients=prior.coefficients,
+            label=f"{start.label}, refitted with arm {long} posed as arm {short}",
+        )  # fmt: skip
+        r_st = first_fit(st, scan, index)
+        sample = scan_sample(scan, 12000)
+        before = two_way_score(index, res.vertices, body_ids, sample)
+        after = two_way_score(index, r_st.vertices, body_ids, sample)
+        sym_after = arm_symmetry(r_st.vertices)
+        scores.append({"stage": "arms", "score": after, "before": before, "symmetry": sym_after})
+        if sym_after < sym and after < before + TIE_MARGIN:
             start, res = st, r_st
     best_cov = start.coverage
     low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
