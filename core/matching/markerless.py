@@ -708,9 +708,25 @@ def fit_markerless(
             index=view_index, assess=rounds == 0, **options,
         )  # fmt: skip
 
-    start, res = tied[0], first_fit(tied[0], scan, index)
     # the body vertices that score whole fits against the scan (:func:`two_way_score`)
     body_ids = np.flatnonzero(template_operators().full.data_mask)[::2]
+
+    def refit(
+        prior: PriorFit, pose: dict[str, np.ndarray], what: str, quick: bool = False
+    ) -> tuple[Start, FitResult]:
+        """The shape-space fit again from the fit ``prior`` (its similarity and shape) posed
+        ``pose``, and its start (``start``'s, labelled "refitted with ``what``")."""
+        st = replace(
+            start, similarity=prior.similarity, pose=pose, coefficients=prior.coefficients,
+            label=f"{start.label}, refitted with {what}",
+        )  # fmt: skip
+        return st, first_fit(st, scan, index, quick=quick)
+
+    def whole_score(X: np.ndarray) -> float:
+        """:func:`two_way_score` of a body X (13380, 3) against the scan."""
+        return two_way_score(index, X, body_ids, scan_sample(scan, 12000))
+
+    start, res = tied[0], first_fit(tied[0], scan, index)
     tie_note = ""
     if sum(len(v[2]) for v in views) > 1:
         # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot; or the
@@ -754,12 +770,8 @@ def fit_markerless(
     if poor and prior is not None:
         tried = []
         for tw in HAND_TWISTS:
-            st = replace(
-                start, similarity=prior.similarity, pose=twisted_pose(prior, poor, tw),
-                coefficients=prior.coefficients,
-                label=f"{start.label}, refitted with forearm {'+'.join(poor)} twisted {tw:+.0f}°",
-            )  # fmt: skip
-            r_tw = first_fit(st, scan, index, quick=True)
+            what = f"forearm {'+'.join(poor)} twisted {tw:+.0f}°"
+            st, r_tw = refit(prior, twisted_pose(prior, poor, tw), what, quick=True)
             got = sum(hand_mismatch(index, r_tw.vertices, x) for x in poor)
             scores.append({"stage": "hand", "twist_deg": tw, "own": own, "twisted": got})
             tried.append((got, st, r_tw))
@@ -776,14 +788,8 @@ def fit_markerless(
     prior = res.body_prior
     if rounds and prior is not None and feet_apart(res.vertices) < CROSSED_FEET_M:
         pose = {b: R for b, R in prior.pose.items() if b.split(".")[0] not in LEG_BONES}
-        st = replace(
-            start, similarity=prior.similarity, pose=pose, coefficients=prior.coefficients,
-            label=f"{start.label}, refitted with the legs uncrossed",
-        )  # fmt: skip
-        r_st = first_fit(st, scan, index)
-        sample = scan_sample(scan, 12000)
-        before = two_way_score(index, res.vertices, body_ids, sample)
-        after = two_way_score(index, r_st.vertices, body_ids, sample)
+        st, r_st = refit(prior, pose, "the legs uncrossed")
+        before, after = whole_score(res.vertices), whole_score(r_st.vertices)
         apart = feet_apart(r_st.vertices)
         scores.append({"stage": "legs", "score": after, "crossed": before, "feet_apart_m": apart})
         if apart >= CROSSED_FEET_M and after < before + TIE_MARGIN:
@@ -802,14 +808,8 @@ def fit_markerless(
         pose = dict(prior.pose)
         for b in ARM_BONES:
             pose[f"{b}.{long}"] = MIRROR_X @ prior.pose.get(f"{b}.{short}", np.eye(3)) @ MIRROR_X
-        st = replace(
-            start, similarity=prior.similarity, pose=pose, coefficients=prior.coefficients,
-            label=f"{start.label}, refitted with arm {long} posed as arm {short}",
-        )  # fmt: skip
-        r_st = first_fit(st, scan, index)
-        sample = scan_sample(scan, 12000)
-        before = two_way_score(index, res.vertices, body_ids, sample)
-        after = two_way_score(index, r_st.vertices, body_ids, sample)
+        st, r_st = refit(prior, pose, f"arm {long} posed as arm {short}")
+        before, after = whole_score(res.vertices), whole_score(r_st.vertices)
         sym_after = arm_symmetry(r_st.vertices)
         scores.append({"stage": "arms", "score": after, "before": before, "symmetry": sym_after})
         if sym_after < sym and after < before + TIE_MARGIN:
