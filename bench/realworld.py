@@ -256,6 +256,7 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     A = case.to_file
     fit_file = scan.frame.to_file(result.vertices)
     row["_fit_body"] = (fit_file - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+    row["_truth_body"] = (np.asarray(case.truth, float) - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
     return row
 
 
@@ -277,7 +278,9 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     distance, all / no hands / per quality part, split into its components across
     (``normal_mm``) and along (``tangential_mm``) the surface, and the two fitted surfaces'
     distance whatever the correspondence (``surface_mm``: area samples of each to the other's
-    surface, both ways)."""
+    surface, both ways); with the truths (``_truth_body``), each fit's mean offset from its
+    truth along the up axis per quality part (``part_up_mm``: (closed, raw); the twins' along-
+    surface difference is mostly a slide of torso and legs along it)."""
     from core.geometry import MeshDistance, vertex_normals
     from core.registration.quality import part_labels
     from core.template import load_template
@@ -315,6 +318,13 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "surface_mm": float((ab.mean() + ba.mean()) / 2 * MM),
             }
         )
+        if "_truth_body" in r and "_truth_body" in s:  # each fit's slide along the up axis
+            T = r["_truth_body"]
+            out[-1]["part_up_mm"] = {
+                n: (float((A - T)[labels == i, 1].mean() * MM),
+                    float((B - s["_truth_body"])[labels == i, 1].mean() * MM))
+                for i, n in enumerate(pnames)
+            }  # fmt: skip
     return out
 
 
@@ -508,6 +518,12 @@ def twin_part_lines(tw: list[dict[str, Any]]) -> list[str]:
         + ", ".join(f"{p} {v:.1f}" for p, v in t["part_mm"].items())
         for t in tw
         if t.get("part_mm")
+    ] + [
+        f"  twins seed {t['seed']}, each fit's mean offset from the truth along the up axis by "
+        "part (closed/raw, mm): "
+        + ", ".join(f"{p} {a:+.0f}/{b:+.0f}" for p, (a, b) in t["part_up_mm"].items())
+        for t in tw
+        if t.get("part_up_mm")
     ]
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bench.realworld import area_samples, surface_metrics
 from core.scan import Scan
@@ -111,3 +112,28 @@ def test_truth_floor_and_twin_split():
     assert 3.0 < t["mean_mm"] <= 5.0 + 1e-9
     assert t["tangential_mm"] > 5 * t["normal_mm"]
     assert t["surface_mm"] < 0.25 * t["mean_mm"]
+
+
+def test_twins_report_each_fits_slide_along_the_up_axis():
+    """With the truths, each twin's mean offset from its truth along the up axis is reported per
+    part: a raw fit whose legs slid 6 mm down reads -6 on the legs and 0 elsewhere."""
+    from bench.realworld import twin_part_lines, twins
+    from core.registration.quality import part_labels
+
+    V = np.asarray(load_template().V, float)
+    labels, pnames = part_labels()
+    legs = np.isin(labels, [pnames.index("leg_L"), pnames.index("leg_R")])
+    B = V.copy()
+    B[legs, 1] -= 0.006
+    rows = [{"seed": 3, "kind": "closed_lowres", "_fit_body": V, "_truth_body": V},
+            {"seed": 3, "kind": "raw", "_fit_body": B, "_truth_body": V}]  # fmt: skip
+    (t,) = twins(rows)
+    assert t["part_up_mm"]["leg_L"] == pytest.approx((0.0, -6.0), abs=1e-6)
+    assert t["part_up_mm"]["torso"] == pytest.approx((0.0, 0.0), abs=1e-6)
+    lines = twin_part_lines([t])
+    assert any("leg_L +0/-6" in line for line in lines)
+    # without the truths (older rows): no such line
+    for r in rows:
+        del r["_truth_body"]
+    (t,) = twins(rows)
+    assert "part_up_mm" not in t
