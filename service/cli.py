@@ -172,7 +172,7 @@ def run_fit(
         ``info`` holds the inputs, the frame and timings for the report.
     """
     from core.io import load_scan
-    from core.registration.fit import fit
+    from core.matching.marker_convention import fit_checking_markers
     from core.registration.schedule import preset
 
     t0 = time.perf_counter()
@@ -194,7 +194,7 @@ def run_fit(
         if markers is None:
             result = _fit_markerless(scan, callback=bar, **options)
         else:
-            result = fit(scan, markers, callback=bar, **options)
+            result = fit_checking_markers(scan, markers, callback=bar, **options)
         from core.transfer.colour import colour_fit
 
         colour_fit(result, scan)

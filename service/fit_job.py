@@ -217,9 +217,9 @@ def _run_core(
     callback: Callable[[Any], bool],
 ):
     """Load the job's inputs and call the core function of its mode; returns a FitResult."""
+    from core.matching.marker_convention import fit_checking_markers
     from core.matching.markerless import fit_markerless
     from core.matching.markers_only import fit_markers_only
-    from core.registration.fit import fit
 
     mode = row.mode or "full"
     opts = _fit_options(row.options or {}, mode)
@@ -248,7 +248,7 @@ def _run_core(
     if mode == "markerless":
         result = fit_markerless(scan_obj, callback=callback, **opts)
     else:
-        result = fit(scan_obj, markers, callback=callback, **opts)
+        result = fit_checking_markers(scan_obj, markers, callback=callback, **opts)
     colour_fit(result, scan_obj)  # a coloured scan gives a coloured body
     return result
 

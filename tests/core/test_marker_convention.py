@@ -1,0 +1,48 @@
+"""Markers of another convention are found before the fit, and the body is fitted without them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.io import load_scan
+from core.io.markers import write_markers_csv
+from core.matching.marker_convention import (
+    FOREIGN_MEDIAN_M,
+    fit_checking_markers,
+    marker_agreement,
+)
+from core.registration.schedule import Schedule
+from core.template import load_template
+
+
+def test_another_conventions_markers_are_set_aside_and_ours_are_used(tmp_path):
+    """closed_lowres-2 of ``bench.realworld`` with its markers of another team's convention
+    (2-5 cm off our landmarks): judged foreign, the body is fitted without them and the report
+    names them all as dropped, with a warning. The same scan with markers on our landmark
+    vertices of the truth (3 mm noise): judged ours, used by the fit."""
+    from core.synth.scanner_outputs import make_case
+
+    case = make_case(2, "closed_lowres")
+    path = case.write(tmp_path / "scan.ply")
+    scan, markers = load_scan(path, markers_path=case.write_markers(tmp_path / "theirs.csv"))
+    agree = marker_agreement(scan, markers)
+    assert agree.foreign and agree.median_m > FOREIGN_MEDIAN_M
+    res = fit_checking_markers(scan, markers, schedule=Schedule.fast())
+    rep = res.report
+    assert any(w.startswith("markers not used") for w in rep.warnings)
+    assert rep.markers_used == [] and rep.markers_dropped == sorted(markers)
+    assert set(rep.marker_residuals_m) == set(markers)
+    assert rep.quality is not None and rep.quality.quality != "failed"
+    # the fit without them is a whole body on the scan
+    assert rep.scan_to_fit_p95_m < 0.006
+
+    tpl = load_template()
+    rng = np.random.default_rng(0)
+    ours = {n: case.truth[i] + rng.normal(0.0, 3.0, 3) for n, i in tpl.landmarks.items()}  # mm
+    write_markers_csv(tmp_path / "ours.csv", ours)
+    scan, markers = load_scan(path, markers_path=tmp_path / "ours.csv")
+    agree = marker_agreement(scan, markers)
+    assert not agree.foreign and agree.median_m < FOREIGN_MEDIAN_M / 2
+    res = fit_checking_markers(scan, markers, schedule=Schedule.fast())
+    assert len(res.report.markers_used) >= 55
+    assert not any(w.startswith("markers not used") for w in res.report.warnings)
