@@ -172,7 +172,7 @@ def run_fit(
         ``info`` holds the inputs, the frame and timings for the report.
     """
     from core.io import load_scan
-    from core.matching.marker_convention import fit_checking_markers
+    from core.matching.marker_checks import fit_checking_markers
     from core.registration.schedule import preset
 
     t0 = time.perf_counter()

@@ -217,7 +217,7 @@ def _run_core(
     callback: Callable[[Any], bool],
 ):
     """Load the job's inputs and call the core function of its mode; returns a FitResult."""
-    from core.matching.marker_convention import fit_checking_markers
+    from core.matching.marker_checks import fit_checking_markers
     from core.matching.markerless import fit_markerless
     from core.matching.markers_only import fit_markers_only
 

@@ -1,10 +1,11 @@
-"""Markers placed by another convention: found before the fit, and the body fitted without them.
+"""Checks before a marker fit, on the body prior fitted to the markers: markers placed by another
+convention are set aside, and a point cloud's normals that point into the body are turned.
 
 A marker fit trusts the markers to sit on our landmark definitions (``core/assets/landmarks.json``,
 CAESAR names). Another team's habit can put every marker 2-5 cm from them, the same way on every
 subject (``core.synth.scanner_outputs.other_convention_markers``); the body prior then bends the
 body to meet them and the fit's correspondence is worse than without markers (``bench.realworld
---markers``, 24 off-model cases: 15.75 mm mean against 8.72 mm markerless on the same scans).
+--markers``, 40 off-model cases: 17.24 mm mean against 9.11 mm markerless on the same scans).
 
 Such markers are told apart by how far they stay from the body they pulled: after the body prior
 (``core.registration.shape_prior``, markers at their robust weights) markers on our definitions
@@ -15,6 +16,10 @@ mm (``bench.realworld --markers``, all 40). Above :data:`FOREIGN_MEDIAN_M` the s
 without markers (:func:`core.matching.markerless.fit_markerless`) and the report says so, with
 the markers' distances from the landmarks of that fit. The check costs one body prior (0.4-0.9 s
 CPU on the held-in cases).
+
+Markers that are ours place the body prior well, so it also tells which of a point cloud's
+estimated normals were oriented the wrong way (``core.registration.correspondence.
+normals_against_body``; the markerless fit does the same with its first shape-space fit).
 """
 
 from __future__ import annotations
@@ -27,9 +32,11 @@ from typing import Any
 import numpy as np
 
 from core.matching.markerless import fit_markerless, predicted_landmarks
+from core.registration.correspondence import MIN_TURNED_NORMALS, normals_against_body
 from core.registration.fit import FitResult, Progress, fit
 from core.registration.schedule import Schedule
 from core.scan import Scan
+from core.template import load_template
 
 #: Median distance (metres) of the markers from their landmarks on the body prior fitted to them
 #: above which they are taken as another convention's: between ours' worst (14.9 mm) and theirs'
@@ -37,6 +44,12 @@ from core.scan import Scan
 FOREIGN_MEDIAN_M = 0.020
 #: Fewer markers than this are not judged (a median of a few says little): fitted as given.
 MIN_JUDGED = 6
+#: A point cloud's normals that point into the body prior fitted to markers of ours are turned
+#: only where they are at least this share of its points (and :data:`MIN_TURNED_NORMALS`): a
+#: limb turned over is 13-19 % (``bench.realworld --wide`` cloud_wide-505/511/517, whose marker
+#: fits failed on it); elsewhere 0.4-2.8 % point into it, noisy normals at thin parts that the
+#: data term already leaves out (turned, cloud-6 read 7.1 -> 8.0 mm from the truth).
+MIN_TURNED_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -45,11 +58,13 @@ class MarkerAgreement:
 
     median_m : median distance (metres) of the used markers from their landmark vertices.
     used : markers the fit used (after screening). foreign : ``median_m`` > the threshold.
+    body : (13380, 3) the body prior's posed body, metres, the scan's frame.
     """
 
     median_m: float
     used: int
     foreign: bool
+    body: np.ndarray
 
 
 def marker_agreement(scan: Scan, markers: dict[str, np.ndarray], **options: Any) -> MarkerAgreement:
@@ -59,7 +74,8 @@ def marker_agreement(scan: Scan, markers: dict[str, np.ndarray], **options: Any)
     res = fit(scan, markers, schedule=Schedule(()), retry=False, assess=False, **opts)
     r = np.array(list(res.report.marker_residuals_m.values()), dtype=np.float64)
     median = float(np.median(r)) if len(r) else float("nan")
-    return MarkerAgreement(median, len(r), len(r) >= MIN_JUDGED and median > FOREIGN_MEDIAN_M)
+    foreign = len(r) >= MIN_JUDGED and median > FOREIGN_MEDIAN_M
+    return MarkerAgreement(median, len(r), foreign, res.vertices)
 
 
 def fit_checking_markers(
@@ -73,13 +89,28 @@ def fit_checking_markers(
     (:func:`marker_agreement`): then :func:`core.matching.markerless.fit_markerless` of the same
     scan, its report naming every marker as dropped, with their distances from the fitted body's
     landmarks (``marker_residuals_m``) and a warning. ``scan`` takes the state the kept fit left
-    it in (the markerless fit may turn a point cloud's normals). Without the body prior
+    it in (the markerless fit may turn a point cloud's normals). With markers of ours, a point
+    cloud's normals that point into the body prior fitted to them are turned first where they
+    are a limb's worth (:data:`MIN_TURNED_SHARE`; the report's first note says how many).
+    Without the body prior
     (``shape_prior=False``, the paper's method) the markers are used as given."""
     if not options.get("shape_prior", True):
         return fit(scan, markers, callback=callback, **options)
     agree = marker_agreement(scan, markers, **options)
     if not agree.foreign:
-        return fit(scan, markers, callback=callback, **options)
+        note = ""
+        if scan.F is None:  # a point cloud: normals that point into the markers' body turned
+            turned = normals_against_body(scan, agree.body, load_template().F)
+            if turned.sum() >= max(MIN_TURNED_NORMALS, MIN_TURNED_SHARE * len(turned)):
+                scan.normals = np.where(turned[:, None], -scan.normals, scan.normals)
+                note = (
+                    f"normals turned at {int(turned.sum()):,} of {len(turned):,} points: their "
+                    "estimated orientation pointed into the body prior fitted to the markers"
+                )
+        res = fit(scan, markers, callback=callback, **options)
+        if note:
+            res.report.notes.insert(0, note)
+        return res
     view = copy.deepcopy(scan)
     res = fit_markerless(view, callback=callback, **options)
     for f in fields(scan):
