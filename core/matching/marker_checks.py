@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from core.matching.markerless import fit_markerless, predicted_landmarks
-from core.registration.correspondence import MIN_TURNED_NORMALS, normals_against_body
+from core.registration.correspondence import MIN_TURNED_NORMALS, turn_normals_against_body
 from core.registration.fit import FitResult, Progress, fit
 from core.registration.schedule import Schedule
 from core.scan import Scan
@@ -92,21 +92,18 @@ def fit_checking_markers(
     it in (the markerless fit may turn a point cloud's normals). With markers of ours, a point
     cloud's normals that point into the body prior fitted to them are turned first where they
     are a limb's worth (:data:`MIN_TURNED_SHARE`; the report's first note says how many).
-    Without the body prior
-    (``shape_prior=False``, the paper's method) the markers are used as given."""
+    Without the body prior (``shape_prior=False``, the paper's method) the markers are used as
+    given."""
     if not options.get("shape_prior", True):
         return fit(scan, markers, callback=callback, **options)
     agree = marker_agreement(scan, markers, **options)
     if not agree.foreign:
         note = ""
         if scan.F is None:  # a point cloud: normals that point into the markers' body turned
-            turned = normals_against_body(scan, agree.body, load_template().F)
-            if turned.sum() >= max(MIN_TURNED_NORMALS, MIN_TURNED_SHARE * len(turned)):
-                scan.normals = np.where(turned[:, None], -scan.normals, scan.normals)
-                note = (
-                    f"normals turned at {int(turned.sum()):,} of {len(turned):,} points: their "
-                    "estimated orientation pointed into the body prior fitted to the markers"
-                )
+            note = turn_normals_against_body(
+                scan, agree.body, load_template().F, "the body prior fitted to the markers",
+                min_turned=max(MIN_TURNED_NORMALS, MIN_TURNED_SHARE * len(scan.V)),
+            )  # fmt: skip
         res = fit(scan, markers, callback=callback, **options)
         if note:
             res.report.notes.insert(0, note)

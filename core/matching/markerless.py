@@ -22,11 +22,7 @@ from core.geometry import area_samples
 from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
 from core.matching.hair import find_hair
-from core.registration.correspondence import (
-    MIN_TURNED_NORMALS,
-    ScanIndex,
-    normals_against_body,
-)
+from core.registration.correspondence import ScanIndex, turn_normals_against_body
 from core.registration.fit import (
     HAND_LENGTH_NOTE,
     RETRIES,
@@ -818,14 +814,12 @@ def fit_markerless(
     low_coverage = not np.isfinite(best_cov) or best_cov < min_coverage
     notes = list(res.report.notes)
     if rounds and scan.F is None:
-        turned = normals_against_body(scan, res.vertices, load_template().F)
-        if turned.sum() >= MIN_TURNED_NORMALS:
-            scan.normals = np.where(turned[:, None], -scan.normals, scan.normals)
+        note = turn_normals_against_body(
+            scan, res.vertices, load_template().F, "the first fitted body"
+        )
+        if note:
             index = ScanIndex(scan)
-            notes.append(
-                f"normals turned at {int(turned.sum()):,} of {len(turned):,} points: their "
-                "estimated orientation pointed into the first fitted body"
-            )
+            notes.append(note)
     # hair: what stands off the first body (fitted to all the data) over the scalp; not looked
     # for again around later bodies (a head fitted too low would call its own scalp hair)
     hair = find_hair(scan, res.vertices) if rounds else None

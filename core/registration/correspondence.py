@@ -195,3 +195,19 @@ def normals_against_body(scan: Scan, X: np.ndarray, F: np.ndarray) -> np.ndarray
     d, nearest = cKDTree(X).query(scan.V, workers=KD_WORKERS)
     dots = np.einsum("ij,ij->i", scan.normals, N_body[nearest])
     return (d < NORMAL_CHECK_M) & (dots < AGAINST_BODY_DOT)
+
+
+def turn_normals_against_body(
+    scan: Scan, X: np.ndarray, F: np.ndarray, what: str, min_turned: float = MIN_TURNED_NORMALS
+) -> str:
+    """Turn, in place, the scan's normals that point into the body ``X`` (13380, 3; F its
+    triangles; :func:`normals_against_body`) where at least ``min_turned`` do; returns the
+    report's note, naming the body as ``what`` ("" where none were turned)."""
+    turned = normals_against_body(scan, X, F)
+    if turned.sum() < min_turned:
+        return ""
+    scan.normals = np.where(turned[:, None], -scan.normals, scan.normals)
+    return (
+        f"normals turned at {int(turned.sum()):,} of {len(turned):,} points: their "
+        f"estimated orientation pointed into {what}"
+    )
