@@ -8,12 +8,18 @@ import numpy as np
 import pytest
 import trimesh
 
+from bench.machine import reference_cpu
 from core.io.frame import detect_frame, rotation_for_up
 from core.io.markers import write_markers_csv
 from core.io.prepare import load_scan, prepare_scan
 from core.io.writers import write_ply
 from core.scan import RawMesh
 from core.template import load_template
+
+#: Preparation of the 300 k-vertex mesh over :func:`bench.machine.reference_cpu`, bound (was an
+#: absolute 1 s, which CI failed once at 1.006 s when the machine had slowed ~2x). Read 3.1-3.3x
+#: on the idle development machine (0.60-0.62 s against 0.18-0.20 s): the bound is ~1 s there.
+PREPARE_OVER_REFERENCE = 5.0
 
 TPL = load_template()
 V0 = np.array(TPL.V)
@@ -161,7 +167,7 @@ def test_isolated_fragments_near_the_body_are_kept_with_low_confidence():
     assert np.all(s.confidence[-3:] == pytest.approx(0.2))
 
 
-def test_prepare_300k_mesh_under_a_second():
+def test_prepare_300k_mesh_in_bounded_cpu_time():
     V, F = trimesh.remesh.subdivide(V0, F0)
     V, F = trimesh.remesh.subdivide(V, F)
     shift = np.array([0.0, 0.0, 2.0])
@@ -170,7 +176,11 @@ def test_prepare_300k_mesh_under_a_second():
     raw = RawMesh(V=V * 1000.0, F=F)
     frame = detect_frame(raw.V, units="mm", up="+y")
     best = min(_timed(raw, frame) for _ in range(3))  # best of 3: CPU time still varies under load
-    assert best < 1.0
+    ref = reference_cpu()
+    assert best / ref < PREPARE_OVER_REFERENCE, (
+        f"preparing 300 k vertices took {best:.2f} s CPU, {best / ref:.1f}x the reference "
+        f"workload's {ref:.2f} s (bound {PREPARE_OVER_REFERENCE}x)"
+    )
 
 
 def _timed(raw, frame):

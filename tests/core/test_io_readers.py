@@ -129,9 +129,9 @@ def test_ply_binary_1m_vertices_is_fast():
     F = rng.integers(0, n, (2 * n, 3))
     b = ply_bytes(V, F)
     read_mesh(b, "ply")  # warm-up
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     r = read_mesh(b, "ply")
-    assert time.perf_counter() - t0 < 1.0
+    assert time.process_time() - t0 < 1.0  # CPU time (all threads): ~0.1 s here
     assert r.V.shape == (n, 3) and r.F.shape == (2 * n, 3)
 
 

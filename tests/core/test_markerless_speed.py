@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.cases import make_case
+from bench.machine import reference_cpu
 
 #: The retry-path fit's CPU time over :func:`reference_cpu`'s, bound (was an absolute 11 s). The
 #: fit's CPU time alone depends on the machine and its moment: 7.4-8.7 s (stop 25), 5.8 s (stop
@@ -19,24 +20,6 @@ from bench.cases import make_case
 #: and 03:00). There, beside it, the reference read 0.37-0.52 s (least of 5): 27-37x. The bound
 #: leaves ~20 % over the highest; the 8 s target itself is the benchmark's (``bench.realworld``).
 FIT_OVER_REFERENCE = 45.0
-
-
-def reference_cpu(repeats: int = 5) -> float:
-    """Least CPU seconds of ``repeats`` runs of a fixed workload of the fit's kind (a KD-tree
-    over 150 k points and its 4-nearest queries; dense normal equations): the machine's speed."""
-    from scipy.spatial import cKDTree
-
-    rng = np.random.default_rng(0)
-    P = rng.random((150_000, 3))
-    A = rng.random((2000, 400))
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.process_time()
-        cKDTree(P, leafsize=32).query(P[::2], k=4)
-        for _ in range(3):
-            np.linalg.solve(A.T @ A + np.eye(400), A.T @ A[:, 0])
-        best = min(best, time.process_time() - t)
-    return best
 
 
 @pytest.fixture(scope="module")
