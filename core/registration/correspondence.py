@@ -28,6 +28,10 @@ def confidence_weight(c: np.ndarray, full_at: float = 0.2) -> np.ndarray:
     return np.clip(np.asarray(c, dtype=np.float64) / full_at, 0.0, 1.0)
 
 
+#: Scan confidence at which a point's data weight reaches 1 (the paper's 0.2).
+CONFIDENCE_FULL_AT = 0.2
+
+
 @dataclass
 class Correspondences:
     """Targets and weights for the data term.
@@ -52,7 +56,7 @@ class Correspondences:
 class ScanIndex:
     """A scan with a KD-tree, ready for repeated correspondence queries."""
 
-    def __init__(self, scan: Scan, *, confidence_full_at: float = 0.2) -> None:
+    def __init__(self, scan: Scan, *, confidence_full_at: float = CONFIDENCE_FULL_AT) -> None:
         self.scan = scan
         self.confidence_full_at = confidence_full_at
         self.points = np.ascontiguousarray(scan.V, dtype=np.float64)

@@ -23,7 +23,7 @@ import numpy as np
 
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
-from core.registration.correspondence import ScanIndex
+from core.registration.correspondence import CONFIDENCE_FULL_AT, ScanIndex
 from core.registration.initialization import MarkerAlignment, Similarity, align_markers
 from core.registration.markers import CONSISTENT_WEIGHT_FLOOR, screen_markers
 from core.registration.multires import Hierarchy, build_hierarchy
@@ -203,8 +203,13 @@ def _check_scan(scan: Scan) -> None:
             raise FitError(f"scan.{name} must have one entry per point ({len(V)})")
 
 
-def _scan_index(scan: Scan, index: ScanIndex | None, confidence_full_at: float) -> ScanIndex:
-    """``index`` when it is this scan's with this confidence ramp, else a new one."""
+def scan_index(
+    scan: Scan, index: ScanIndex | None = None, confidence_full_at: float = CONFIDENCE_FULL_AT
+) -> ScanIndex:
+    """``index`` when it is this scan's with this confidence ramp, else a new one (the scan
+    checked first: a NaN point is a ``FitError``, not scipy's ``ValueError``). Build it once
+    for several fits of one scan and pass it as their ``index``."""
+    _check_scan(scan)
     if index is None or index.scan is not scan or index.confidence_full_at != confidence_full_at:
         index = ScanIndex(scan, confidence_full_at=confidence_full_at)
     return index
@@ -218,7 +223,7 @@ def iter_fit(
     template: Template | None = None,
     max_distance: float = 0.10,
     max_angle_deg: float = 90.0,
-    confidence_full_at: float = 0.2,
+    confidence_full_at: float = CONFIDENCE_FULL_AT,
     marker_far_distance: float = 0.10,
     n_low: int = 2500,
     unit_scale: float = 1000.0,
@@ -284,7 +289,7 @@ def iter_fit(
     if scan.frame is not None:
         report.units, report.up = scan.frame.units, scan.frame.up
 
-    index = _scan_index(scan, index, confidence_full_at)
+    index = scan_index(scan, index, confidence_full_at)
     markers, align, consistent = screen_and_align(
         index, tpl, markers, report,
         marker_far_distance=marker_far_distance,
@@ -772,7 +777,7 @@ def fit(
     template: Template | None = None,
     max_distance: float = 0.10,
     max_angle_deg: float = 90.0,
-    confidence_full_at: float = 0.2,
+    confidence_full_at: float = CONFIDENCE_FULL_AT,
     marker_far_distance: float = 0.10,
     n_low: int = 2500,
     unit_scale: float = 1000.0,
@@ -815,8 +820,7 @@ def fit(
         "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
         "prior_restart": prior_restart,
     }  # fmt: skip
-    _check_scan(scan)  # before the KD-tree (a NaN point is a FitError, not scipy's ValueError)
-    options["index"] = _scan_index(scan, index, confidence_full_at)  # shared by the retries
+    options["index"] = scan_index(scan, index, confidence_full_at)  # shared by the retries
     res = _run(scan, markers, callback, options)
     q = res.report.quality
     if not retry or q is None or not q.weak_parts() or not shape_prior:

@@ -11,11 +11,12 @@ from core.matching.marker_checks import (
     fit_checking_markers,
     marker_agreement,
 )
+from core.registration.correspondence import ScanIndex
 from core.registration.schedule import Schedule
 from core.template import load_template
 
 
-def test_another_conventions_markers_are_set_aside_and_ours_are_used(tmp_path):
+def test_another_conventions_markers_are_set_aside_and_ours_are_used(tmp_path, monkeypatch):
     """closed_lowres-2 of ``bench.realworld`` with its markers of another team's convention
     (2-5 cm off our landmarks): judged foreign, the body is fitted without them and the report
     names them all as dropped, with a warning. The same scan with markers on our landmark
@@ -43,7 +44,13 @@ def test_another_conventions_markers_are_set_aside_and_ours_are_used(tmp_path):
     scan, markers = load_scan(path, markers_path=tmp_path / "ours.csv")
     agree = marker_agreement(scan, markers)
     assert not agree.foreign and agree.median_m < FOREIGN_MEDIAN_M / 2
+    built = []  # the check and the fit share one KD-tree of the mesh
+    init = ScanIndex.__init__
+    monkeypatch.setattr(
+        ScanIndex, "__init__", lambda s, *a, **k: built.append(1) or init(s, *a, **k)
+    )
     res = fit_checking_markers(scan, markers, schedule=Schedule.fast())
+    assert len(built) == 1
     assert len(res.report.markers_used) >= 55
     assert not any(w.startswith("markers not used") for w in res.report.warnings)
 
