@@ -137,3 +137,19 @@ def test_twins_report_each_fits_slide_along_the_up_axis():
         del r["_truth_body"]
     (t,) = twins(rows)
     assert "part_up_mm" not in t
+
+
+def test_landmark_lines_average_over_cases_and_name_the_worst():
+    """Two cases: every landmark 2 mm off in one and 4 mm in the other, but the Crotch 30 mm off
+    in the second: mean (2 + 4) / 2 + 13 / 62, the Crotch named worst at 16 mm."""
+    from bench.realworld import landmark_lines
+
+    names = list(load_template().landmarks)
+    a = {k: 2.0 for k in names}
+    b = {k: 4.0 for k in names} | {"Crotch": 30.0}
+    lines = landmark_lines([{"landmark_err_mm": a}, {"landmark_err_mm": b}])
+    want = (2.0 * 62 + 4.0 * 61 + 30.0) / 124
+    assert f"mean {want:.2f} mm" in lines[0]
+    assert "within 10 mm 99 %" in lines[0]
+    assert lines[1].split(": ", 1)[1].startswith("Crotch 16.0")
+    assert landmark_lines([{"seed": 1}]) == []
