@@ -264,6 +264,10 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     fit_file = scan.frame.to_file(result.vertices)
     row["_fit_body"] = (fit_file - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
     row["_truth_body"] = (np.asarray(case.truth, float) - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+    # each landmark's offset from the truth's in the body's own frame (x left, y up, z front):
+    # what is systematic over cases is a bias of the fit, not noise
+    off = (row["_fit_body"] - row["_truth_body"]) * MM
+    row["landmark_offset_mm"] = {k: [float(c) for c in off[i]] for k, i in lms.items()}
     return row
 
 
@@ -533,6 +537,22 @@ def landmark_lines(ok: list[dict[str, Any]], worst: int = 8) -> list[str]:
         f"{np.median(E):.2f}, p95 {np.percentile(E, 95):.2f}; within 10 mm "
         f"{(E <= 10).mean() * 100:.0f} %",
         "  worst on average (mm): " + ", ".join(f"{names[i]} {by[i]:.1f}" for i in order),
+        *landmark_bias_lines(rows, worst),
+    ]
+
+
+def landmark_bias_lines(rows: list[dict[str, Any]], worst: int = 8) -> list[str]:
+    """A line: the landmarks whose mean offset from the truth's (body frame: x left, y up,
+    z front; mm) is largest over the cases: a bias the fit shares across bodies."""
+    rows = [r for r in rows if "landmark_offset_mm" in r]
+    if not rows:
+        return []
+    names = list(rows[0]["landmark_offset_mm"])
+    M = np.array([[r["landmark_offset_mm"][k] for k in names] for r in rows]).mean(0)
+    order = np.argsort(np.linalg.norm(M, axis=1))[::-1][:worst]
+    return [
+        "  largest mean offsets (x left, y up, z front; mm): "
+        + ", ".join(f"{names[i]} ({M[i, 0]:+.0f}, {M[i, 1]:+.0f}, {M[i, 2]:+.0f})" for i in order)
     ]
 
 

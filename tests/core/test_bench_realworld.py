@@ -153,3 +153,18 @@ def test_landmark_lines_average_over_cases_and_name_the_worst():
     assert "within 10 mm 99 %" in lines[0]
     assert lines[1].split(": ", 1)[1].startswith("Crotch 16.0")
     assert landmark_lines([{"seed": 1}]) == []
+
+
+def test_landmark_bias_is_the_mean_signed_offset():
+    """Acromion_L 10 mm forward in one case and 20 mm in the other, every other landmark off by
+    +-5 mm sideways alternately: the Acromion_L leads with (+0, +0, +15)."""
+    from bench.realworld import landmark_bias_lines
+
+    names = list(load_template().landmarks)
+    rows = []
+    for k, fwd in enumerate((10.0, 20.0)):
+        off = {n: [5.0 * (-1) ** k, 0.0, 0.0] for n in names}
+        off["Acromion_L"] = [0.0, 0.0, fwd]
+        rows.append({"landmark_offset_mm": off})
+    (line,) = landmark_bias_lines(rows)
+    assert line.split(": ", 1)[1].startswith("Acromion_L (+0, +0, +15), ")
