@@ -826,6 +826,18 @@ def fit_markerless(
     # one KD-tree for every round (and its retry): the scan's, or that of the scan without hair
     round_index = index if hair is None or hair.scan is scan else ScanIndex(hair.scan)
     fists = fisted_hands(round_index, res.vertices) if rounds else ""
+    # a hand resting on the torso or thigh (fused to it in a closed mesh): the scan cannot tell
+    # hand from thigh, and the thigh's data and the first fit's hand landmarks (where its
+    # stretched arm put them) pulled it 5-9 cm down the thigh. In the round it takes no data and
+    # no landmarks: the arm's data and the body prior place it (``bench.realworld --booth`` 40:
+    # correspondence 16.05 -> 15.57 mm, closed_booth-322's hands 35/24 -> 16/11 mm off, but
+    # -311's 29/38 -> 46/52; without data alone 15.90, without landmarks alone 15.90 and two
+    # fits failed; varied 40 9.07 -> 8.95, heavy 20 17.90 -> 17.70, raw-102's hand 95 -> 62 mm)
+    resting = ""
+    if rounds:
+        gaps = hand_body_gaps(res.vertices)
+        rest_gap = THRESHOLDS["hand_body_gap_m"].suspect
+        resting = "".join(x for x in "LR" if gaps[x] < rest_gap and x not in fists)
     for r in range(rounds):
         last = r == rounds - 1
         assert hair is not None
@@ -836,9 +848,13 @@ def fit_markerless(
             # the truth after round 1, 20-22 mm before; their twins 15.6 -> 12.2 mm without it)
             for x in fists:
                 marks.pop(f"Dactylion_{x}")
+            for x in resting:
+                for lm in ("Dactylion", "Ulnar_styloid", "Radial_styloid"):
+                    marks.pop(f"{lm}_{x}", None)
             # an open hand clear of the body: its fingertip where the scanned hand ends (the
             # first fit's came from the shape coefficients: the fingers take no data)
-            for x, end in free_hand_ends(round_index, res.vertices, skip=fists).items():
+            skip = fists + resting
+            for x, end in free_hand_ends(round_index, res.vertices, skip=skip).items():
                 marks[f"Dactylion_{x}"] = end.point
         # the round's body prior from the landmarks' alignment and rest pose, and from where the
         # previous fit's ended; the latter is kept where it scores better (two-way) by more than
@@ -856,7 +872,8 @@ def fit_markerless(
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
-            retries=MARKERLESS_RETRIES, prior_restart=restart, prior_options={
+            retries=MARKERLESS_RETRIES, prior_restart=restart,
+            part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
                 "hand_length": True,
             },
@@ -864,6 +881,11 @@ def fit_markerless(
         )  # fmt: skip
     if hair is not None and hair.count:
         res.report.warnings.append(hair.warning())
+    if resting:
+        notes.append(
+            f"hands resting on the body ({', '.join(resting)}): placed by the arms' data and the "
+            "body prior, not by the scan around them (it cannot tell hand from thigh)"
+        )
     if fists:
         notes.append(
             f"hands fitted as fists ({', '.join(fists)}): the open hand's fingertips of the "
