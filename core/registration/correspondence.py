@@ -21,15 +21,13 @@ from core.threads import KD_WORKERS
 #: 7.86-8.00 s with 16; the search's queries alone 0.36 vs 0.52 s (64: 0.30 s, but slower on
 #: the refinement's near ones).
 KD_LEAFSIZE = 32
-
-
-def confidence_weight(c: np.ndarray, full_at: float = 0.2) -> np.ndarray:
-    """Paper's confidence ramp: 0 at c ≤ 0, 1 at c ≥ ``full_at``, linear between. (n,) → (n,)."""
-    return np.clip(np.asarray(c, dtype=np.float64) / full_at, 0.0, 1.0)
-
-
 #: Scan confidence at which a point's data weight reaches 1 (the paper's 0.2).
 CONFIDENCE_FULL_AT = 0.2
+
+
+def confidence_weight(c: np.ndarray, full_at: float = CONFIDENCE_FULL_AT) -> np.ndarray:
+    """Paper's confidence ramp: 0 at c ≤ 0, 1 at c ≥ ``full_at``, linear between. (n,) → (n,)."""
+    return np.clip(np.asarray(c, dtype=np.float64) / full_at, 0.0, 1.0)
 
 
 @dataclass
