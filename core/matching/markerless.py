@@ -43,6 +43,7 @@ from core.registration.quality import (
 )
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
+    ARM_LENGTH_PRIOR,
     BONE_PRIOR,
     FOOT_PRIOR,
     HEAD_PRIOR,
@@ -863,6 +864,8 @@ def fit_markerless(
         # fit a heavy body's lost feet or arm stayed lost (raw-59/63 of --heavy; raw-59 0.456
         # vs 0.535), and near ties went either way (without the margin: heavy 20 18.37 -> 19.50
         # mm, 4 good -> suspect, each within 0.005)
+        # the arm length prior (:data:`ARM_LENGTH_PRIOR`) in the round: an arm fused to the flank
+        # of a closed mesh has data all down the thigh, and the first fit stretches its forearm
         prev = res.body_prior
         assert prev is not None
         score = partial(
@@ -875,7 +878,7 @@ def fit_markerless(
             retries=MARKERLESS_RETRIES, prior_restart=restart,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
-                "hand_length": True,
+                "hand_length": True, "arm_length_prior": ARM_LENGTH_PRIOR,
             },
             **options,
         )  # fmt: skip

@@ -192,24 +192,29 @@ LIMB_PRIOR = 100.0
 #: Plausible rest lengths of the arm's bones per stature (joint to joint: ``upperarm01`` →
 #: ``lowerarm01`` → ``wrist``; stature: the rest body's height), ``{bone: (low, high)}``. ANSUR
 #: II (dev split) reads forearm (radiale–stylion) / stature 0.129–0.176 in all 4 082 soldiers
-#: (mean 0.150, ±4 % SD) and upper arm (acromion–radiale, from the acromion above the joint)
-#: 0.171–0.214; the off-model bodies of ``core.synth.realworld`` (bones ±7 %), joint to joint,
-#: 0.138–0.169 and 0.126–0.162. The bands hold all of them with a margin.
+#: (mean 0.150, SD 0.0065, ±4 %) and upper arm (acromion–radiale, from the acromion above the
+#: joint) 0.171–0.214; the off-model bodies of ``core.synth.realworld`` (bones ±7 %), joint to
+#: joint, 0.138–0.169 and 0.126–0.162. The upper arm's band holds all of them with a margin.
+#: The forearm's is the shape space's mean joint-to-joint forearm (0.135 of the stature) ± 2.6
+#: ANSUR SDs of the ratio (its p0.5–p99.5 spread): where the data cannot tell the forearm's
+#: length (an arm fused to the flank in a closed mesh) the fit stops at 0.152, not at 0.170
+#: (closed_booth-339: rest forearm 0.18 of the stature, truth 0.137). Off-model forearms past it
+#: (the generator's longest, 0.162) are held at most ~6 % short where the data do not pull them.
 ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
-    "upperarm01": (0.125, 0.185), "lowerarm01": (0.115, 0.170),
+    "upperarm01": (0.125, 0.185), "lowerarm01": (0.118, 0.152),
 }  # fmt: skip
 #: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the arm length prior
-#: (``fit_body_prior(arm_length_prior=)``; not in the default markerless fit, see below): a
+#: (``fit_body_prior(arm_length_prior=)``; the markerless fit's soft-marker round uses it): a
 #: bone's rest length beyond its :data:`ARM_BONE_RATIOS` band of the stature, and the left and
-#: right bones' difference (the arms of one body are alike within ~2 %). Measured
-#: (``bench.realworld``, on 6a498d7): booth set 40 correspondence 19.95 -> 19.45 mm (p95 50.5 ->
-#: 46.7), closed_booth-339's hands 104/124 -> 95/95 mm off; varied 40 10.46 -> 10.38 mm; heavy
-#: 20 22.54 -> 22.75 (raw-102's lost hand 123 -> 72 mm, raw-45 21.7 -> 36.6: a foot 49 mm off,
-#: the heavy set's chaos); held-in ``bench.matching`` markerless 3.47 (6b056bd) -> 3.41 mm. It
-#: bounds, it does not place: a hand fused to the thigh still lands 5-10 cm off (the quality
-#: check says so). Not kept in the markerless fit: on heavy raw-35 (190 k points) it added a
-#: near-tied start's shape-space fit, and that scan's fit with a retry took 13.6 s CPU (the
-#: 11 s bound of ``tests/core/test_markerless_speed.py``; 12.1 s without it), for 0.1-0.5 mm.
+#: right bones' difference (the arms of one body are alike within ~2 %). In the round only, with
+#: the forearm band above (``bench.realworld``, 6c1256d → this): booth 40 correspondence 15.57
+#: -> 14.73 mm (closed_booth-339 37.8 -> 21.8, -304 18.0 -> 7.5, -314 15.2 -> 20.3), landmarks
+#: 15.29 -> 14.86; heavy 20 17.70 -> 17.20 (raw-102's twins 13.4 -> 7.3 mm); varied 40 8.95 ->
+#: 8.98, verdicts unchanged in all three. Earlier, with the wide forearm band (0.115–0.170) in
+#: every markerless stage (on 6a498d7): booth 19.95 -> 19.45, varied 10.46 -> 10.38, heavy 22.54
+#: -> 22.75 and heavy raw-35's fit 13.6 s CPU (a near-tied start's extra shape-space fit); at
+#: 10 000 per m² in every stage the heavy set broke (22.54 -> 32.80 mm): the prior acts on the
+#: global shape coefficients, which also shape legs and trunk.
 ARM_LENGTH_PRIOR = 100.0
 
 

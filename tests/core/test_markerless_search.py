@@ -480,3 +480,35 @@ def test_hands_resting_on_the_thighs_are_placed_by_the_arms_not_the_thigh(tmp_pa
         hand = tpl.part_mask(f"hand_{side}")
         off = np.linalg.norm(res.vertices[hand].mean(0) - truth[hand].mean(0)) * 1000
         assert off < 22.0, (side, off)  # measured 16 / 11 mm (35 / 24 with their data)
+
+
+def test_an_arm_fused_to_the_flank_keeps_a_forearm_of_a_human_length(tmp_path):
+    """closed_booth-339 (BMI 40, arms touching the torso, hands fused to the thighs): the flank's
+    data stretched the first fit's forearms to 0.18 of the stature (truth 0.137), hands 95 mm
+    low. The soft-marker round's arm length prior (``ARM_BONE_RATIOS``' forearm band, up to
+    0.152) holds them, and the hands come up."""
+    import core.matching.markerless as ml
+    from core.io import load_scan
+    from core.registration.shape_prior import ARM_BONE_RATIOS
+    from core.rig import joint_positions, load_rig
+    from core.synth.scanner_outputs import make_case
+    from core.template import load_template
+
+    tpl, rig = load_template(), load_rig()
+    case = make_case(339, "closed_booth")
+    scan, _ = load_scan(case.write(tmp_path / "booth.ply"))
+    res = ml.fit_markerless(scan)
+    truth = scan.frame.to_canonical(case.truth)
+    assert res.body_prior is not None
+    rest = res.body_prior.rest
+    J = joint_positions(rest)
+    stature = rest[:, 1].max() - rest[:, 1].min()
+    hi = ARM_BONE_RATIOS["lowerarm01"][1]
+    for side in "LR":
+        elbow, wrist = J[rig.index(f"lowerarm01.{side}")], J[rig.index(f"wrist.{side}")]
+        ratio = np.linalg.norm(wrist - elbow) / stature
+        assert ratio < hi + 0.004, (side, ratio)  # measured 0.154 (0.182 / 0.178 without)
+        hand = tpl.part_mask(f"hand_{side}")
+        off = np.linalg.norm(res.vertices[hand].mean(0) - truth[hand].mean(0)) * 1000
+        assert off < 50.0, (side, off)  # measured 29 / 37 mm (95 / 93 without)
+    assert res.report.quality.quality != "good"  # hands fused to the thighs: it says so
