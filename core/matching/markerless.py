@@ -43,7 +43,7 @@ from core.registration.quality import (
 )
 from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
-    ARM_LENGTH_PRIOR,
+    BONE_LENGTH_PRIOR,
     BONE_PRIOR,
     FOOT_PRIOR,
     HEAD_PRIOR,
@@ -864,8 +864,11 @@ def fit_markerless(
         # fit a heavy body's lost feet or arm stayed lost (raw-59/63 of --heavy; raw-59 0.456
         # vs 0.535), and near ties went either way (without the margin: heavy 20 18.37 -> 19.50
         # mm, 4 good -> suspect, each within 0.005)
-        # the arm length prior (:data:`ARM_LENGTH_PRIOR`) in the round: an arm fused to the flank
-        # of a closed mesh has data all down the thigh, and the first fit stretches its forearm
+        # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
+        # flank of a closed mesh has data all down the thigh, and the first fit stretched its
+        # forearm (or left it short); a resting hand's forearm is pulled to the shape space's mean
+        # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
+        # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
         prev = res.body_prior
         assert prev is not None
         score = partial(
@@ -878,7 +881,8 @@ def fit_markerless(
             retries=MARKERLESS_RETRIES, prior_restart=restart,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
-                "hand_length": True, "arm_length_prior": ARM_LENGTH_PRIOR,
+                "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
+                "bone_length_centred": resting,
             },
             **options,
         )  # fmt: skip
@@ -887,7 +891,8 @@ def fit_markerless(
     if resting:
         notes.append(
             f"hands resting on the body ({', '.join(resting)}): placed by the arms' data and the "
-            "body prior, not by the scan around them (it cannot tell hand from thigh)"
+            "body prior (forearms of the shape space's mean length), not by the scan around them "
+            "(it cannot tell hand from thigh, nor where the forearm ends)"
         )
     if fists:
         notes.append(

@@ -203,19 +203,41 @@ LIMB_PRIOR = 100.0
 ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
     "upperarm01": (0.125, 0.185), "lowerarm01": (0.118, 0.152),
 }  # fmt: skip
-#: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the arm length prior
-#: (``fit_body_prior(arm_length_prior=)``; the markerless fit's soft-marker round uses it): a
-#: bone's rest length beyond its :data:`ARM_BONE_RATIOS` band of the stature, and the left and
-#: right bones' difference (the arms of one body are alike within ~2 %). In the round only, with
-#: the forearm band above (``bench.realworld``, 6c1256d → this): booth 40 correspondence 15.57
-#: -> 14.73 mm (closed_booth-339 37.8 -> 21.8, -304 18.0 -> 7.5, -314 15.2 -> 20.3), landmarks
-#: 15.29 -> 14.86; heavy 20 17.70 -> 17.20 (raw-102's twins 13.4 -> 7.3 mm); varied 40 8.95 ->
-#: 8.98, verdicts unchanged in all three. Earlier, with the wide forearm band (0.115–0.170) in
-#: every markerless stage (on 6a498d7): booth 19.95 -> 19.45, varied 10.46 -> 10.38, heavy 22.54
-#: -> 22.75 and heavy raw-35's fit 13.6 s CPU (a near-tied start's extra shape-space fit); at
-#: 10 000 per m² in every stage the heavy set broke (22.54 -> 32.80 mm): the prior acts on the
-#: global shape coefficients, which also shape legs and trunk.
-ARM_LENGTH_PRIOR = 100.0
+#: Plausible rest lengths of the thigh per stature (joint to joint: ``upperleg01`` →
+#: ``lowerleg01``, the knee). ANSUR II (dev split) reads thigh (trochanterion height − lateral
+#: femoral epicondyle height) / stature 0.233 (SD 0.012, both sexes; 0.184–0.286); the band is
+#: that ± 2.6 SDs shifted by the template's joint-to-joint thigh over its landmark thigh (0.253
+#: vs 0.245). Off-model heavy bodies fitted without it had thighs of 0.19–0.20 (truths
+#: 0.23–0.24: ``bench.realworld`` closed_booth-305 / -339, their hips 30–58 mm low and knees
+#: 35–44 mm high — the skin of the shape space's fat slid along the thigh).
+LEG_BONE_RATIOS: dict[str, tuple[float, float]] = {"upperleg01": (0.210, 0.272)}
+#: Every bone the bone length prior holds in a band (``fit_body_prior(bone_length_prior=)``).
+BONE_LENGTH_RATIOS: dict[str, tuple[float, float]] = {**ARM_BONE_RATIOS, **LEG_BONE_RATIOS}
+#: The joint at each such bone's far end (its length: head to that joint).
+BONE_CHILD_JOINTS = {"upperarm01": "lowerarm01", "lowerarm01": "wrist", "upperleg01": "lowerleg01"}
+#: A weight (per m², in units of one data row, as :data:`LIMB_PRIOR`) for the bone length prior
+#: (``fit_body_prior(bone_length_prior=)``; the markerless fit's soft-marker round uses it): a
+#: bone's rest length beyond its :data:`BONE_LENGTH_RATIOS` band of the stature, and the left
+#: and right bones' difference (the limbs of one body are alike within ~2 %). In the round only
+#: (``bench.realworld``, correspondence mean mm from 6c1256d): the arms' bands, booth 40 15.57
+#: -> 14.73 (closed_booth-339 37.8 -> 21.8, -304 18.0 -> 7.5, -314 15.2 -> 20.3), heavy 20
+#: 17.70 -> 17.20, varied 40 8.95 -> 8.98; with :data:`ARM_BONE_CENTRES` for resting hands,
+#: booth 14.14, heavy 17.00, varied 9.13; with the thigh's band, booth 14.30 (landmarks 14.72
+#: -> 14.58), heavy 16.77 (landmarks 20.50 -> 19.92, closed_lowres-89 suspect -> good), varied
+#: VARIED_THIGH. Earlier, the wide forearm band (0.115–0.170) in every markerless stage (on
+#: 6a498d7): booth 19.95 -> 19.45, varied 10.46 -> 10.38, heavy 22.54 -> 22.75, and at 10 000
+#: per m² the heavy set broke (22.54 -> 32.80): the prior acts on the global shape
+#: coefficients, which also shape legs and trunk.
+BONE_LENGTH_PRIOR = 100.0
+#: Rest length per stature an arm's bones are pulled to where the data cannot tell it
+#: (``fit_body_prior(bone_length_centred=)``: a band of no width): the shape space's mean (300
+#: random bodies of the basis: forearm 0.1354 ± 0.0088; the template's 0.1359). The markerless
+#: fit's soft-marker round centres the forearm of an arm whose hand rests on the body (fused to
+#: the thigh in a closed mesh): ``bench.realworld --booth`` 40 correspondence 14.73 -> 14.14 mm
+#: (closed_booth-311's forearm 0.122 -> 0.134 of the stature, truth 0.147, hands 50 -> 29 mm
+#: off; -339's 0.154 -> 0.138, truth 0.137, hands 30/37 -> 20/11 mm; -322's 0.148, truth 0.149,
+#: pulled short: 13.7 -> 15.8 mm).
+ARM_BONE_CENTRES: dict[str, float] = {"lowerarm01": 0.135}
 
 
 def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
@@ -263,7 +285,8 @@ class PriorOptions:
     basis: ShapeBasis | None = None
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
     limb_prior: float = 0.0
-    arm_length_prior: float = 0.0
+    bone_length_prior: float = 0.0
+    bone_length_centred: str = ""
     fists: str = ""
     floor_y: float | None = None
     hand_length: bool = False
@@ -500,14 +523,15 @@ def _limb_rows(V0: np.ndarray, U: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.
     return np.array(G), np.array(g0)
 
 
-def _arm_length_terms(V0: np.ndarray, U: np.ndarray, rig: Rig) -> dict[str, Any]:
-    """What :func:`_arm_length_rows` needs: per arm joint (``upperarm01``, ``lowerarm01``,
-    ``wrist`` of each side) its rest position as ``p0 (3,) + G (3, k) @ c``; the stature as
-    ``s0 + gs (k,) @ c`` (the rest body's highest vertex over its lowest)."""
+def _bone_length_terms(V0: np.ndarray, U: np.ndarray, rig: Rig) -> dict[str, Any]:
+    """What :func:`_bone_length_rows` needs: per joint at either end of a bone of
+    :data:`BONE_LENGTH_RATIOS` (:data:`BONE_CHILD_JOINTS`; each side) its rest position as
+    ``p0 (3,) + G (3, k) @ c``; the stature as ``s0 + gs (k,) @ c`` (the rest body's highest
+    vertex over its lowest)."""
     idx, w = rig.head_reg_idx, rig.head_reg_w
     joints = {}
     for side in "LR":
-        for name in ("upperarm01", "lowerarm01", "wrist"):
+        for name in dict.fromkeys([*BONE_CHILD_JOINTS, *BONE_CHILD_JOINTS.values()]):
             j = rig.index(f"{name}.{side}")
             joints[f"{name}.{side}"] = (w[j] @ V0[idx[j]], np.einsum("q,qck->ck", w[j], U[idx[j]]))
     top, bottom = int(np.argmax(V0[:, 1])), int(np.argmin(V0[:, 1]))
@@ -518,17 +542,22 @@ def _arm_length_terms(V0: np.ndarray, U: np.ndarray, rig: Rig) -> dict[str, Any]
     }
 
 
-def _arm_length_rows(terms: dict[str, Any], c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Residual rows (metres) of the arm length prior at shape ``c`` (k,), linearised:
-    Jacobian (m, k) and residuals (m,). Per side and bone of :data:`ARM_BONE_RATIOS`, a row
-    where the bone's rest length leaves its band of the stature (to the band's edge); per bone,
-    the left minus the right length."""
+def _bone_length_rows(
+    terms: dict[str, Any], c: np.ndarray, centred: str = ""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residual rows (metres) of the bone length prior at shape ``c`` (k,), linearised:
+    Jacobian (m, k) and residuals (m,). Per side and bone of :data:`BONE_LENGTH_RATIOS`, a row
+    where the bone's rest length leaves its band of the stature (to the band's edge; for the
+    ``centred`` sides' bones of :data:`ARM_BONE_CENTRES`, a row to that centre); per bone, the
+    left minus the right length."""
     J_all, r_all = [], []
     stature = terms["s0"] + terms["gs"] @ c
     lengths: dict[tuple[str, str], tuple[float, np.ndarray]] = {}
-    child = {"upperarm01": "lowerarm01", "lowerarm01": "wrist"}
+    child = BONE_CHILD_JOINTS
     for side in "LR":
-        for bone, (lo, hi) in ARM_BONE_RATIOS.items():
+        for bone, (lo, hi) in BONE_LENGTH_RATIOS.items():
+            if side in centred and bone in ARM_BONE_CENTRES:
+                lo = hi = ARM_BONE_CENTRES[bone]
             (pa, Ga), (pb, Gb) = (
                 terms["joints"][f"{bone}.{side}"],
                 terms["joints"][f"{child[bone]}.{side}"],
@@ -541,7 +570,7 @@ def _arm_length_rows(terms: dict[str, Any], c: np.ndarray) -> tuple[np.ndarray, 
                 if outside:
                     J_all.append(dL - edge * terms["gs"])
                     r_all.append(length - edge * stature)
-    for bone in ARM_BONE_RATIOS:
+    for bone in BONE_LENGTH_RATIOS:
         (lL, dLL), (lR, dLR) = lengths[(bone, "L")], lengths[(bone, "R")]
         J_all.append(dLL - dLR)
         r_all.append(lL - lR)
@@ -578,7 +607,8 @@ def fit_body_prior(
     point_weight: float = 0.0,
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
     limb_prior: float = 0.0,
-    arm_length_prior: float = 0.0,
+    bone_length_prior: float = 0.0,
+    bone_length_centred: str = "",
     fists: str = "",
     floor_y: float | None = None,
     hand_length: bool = False,
@@ -632,13 +662,16 @@ def fit_body_prior(
         elbows of heavy bodies 10-16 cm down the arm (rest forearm / upper arm 0.29-0.66,
         truths 0.87-0.96; ``core.synth.scanner_outputs`` raw-16/28, closed_lowres-16/24), arm
         centroids 51-84 mm off the truth's.
-    arm_length_prior : weight (per m², in units of one data row) of the arms' rest bone
-        lengths beyond their :data:`ARM_BONE_RATIOS` bands of the stature and of the left and
-        right bones' difference (e.g. :data:`ARM_LENGTH_PRIOR`); 0 (default):
+    bone_length_prior : weight (per m², in units of one data row) of the arms' and thighs'
+        rest bone lengths beyond their :data:`BONE_LENGTH_RATIOS` bands of the stature and of
+        the left and right bones' difference (e.g. :data:`BONE_LENGTH_PRIOR`); 0 (default):
         none. An arm hanging against a heavy body's side or fused to it in a closed mesh has
         data all along the flank: without it the shape space stretched the forearms of
         ``bench.realworld --booth`` closed_booth-339 (BMI 40, arms touching) to 0.18/0.20 of
         the stature (the truth's 0.137), left and right apart, hands 104/124 mm low.
+    bone_length_centred : sides (``"L"``, ``"R"``) whose bones of :data:`ARM_BONE_CENTRES` the
+        bone length prior pulls to that centre instead of holding in their band: arms whose data
+        cannot tell their length (a hand fused to the thigh). Needs ``bone_length_prior`` > 0.
     fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
         (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
     floor_y : height (metres, scan frame, +Y up) below which no body vertex may go: vertices
@@ -698,7 +731,7 @@ def fit_body_prior(
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
-    arm_terms = _arm_length_terms(V0, U, art.rig) if arm_length_prior > 0 else None
+    bone_terms = _bone_length_terms(V0, U, art.rig) if bone_length_prior > 0 else None
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -796,10 +829,10 @@ def fit_body_prior(
         if len(G_limb):  # elbows where the shape puts them along the arm, not slid
             H[:k, :k] += limb_prior * G_limb.T @ G_limb
             g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
-        if arm_terms is not None:  # arms of a human's length, left as long as right
-            J_a, r_a = _arm_length_rows(arm_terms, c)
-            H[:k, :k] += arm_length_prior * J_a.T @ J_a
-            g[:k] -= arm_length_prior * J_a.T @ r_a
+        if bone_terms is not None:  # arms of a human's length, left as long as right
+            J_a, r_a = _bone_length_rows(bone_terms, c, bone_length_centred)
+            H[:k, :k] += bone_length_prior * J_a.T @ J_a
+            g[:k] -= bone_length_prior * J_a.T @ r_a
         H += damping * np.diag(np.diag(H))
         delta = np.linalg.solve(H, g)
         c = c + delta[:k]

@@ -53,30 +53,39 @@ def test_the_leg_twist_prior_weighs_twist_about_the_thigh_only() -> None:
         assert abs(vecs[:, 2] @ axis) > 0.95, name  # twisting it about its own axis does
 
 
-def test_the_arm_length_prior_rows_are_the_lengths_linearised_with_a_band() -> None:
+def test_the_bone_length_prior_rows_are_the_lengths_linearised_with_a_band() -> None:
     from core.registration.shape_prior import (
-        ARM_BONE_RATIOS,
-        _arm_length_rows,
-        _arm_length_terms,
+        BONE_LENGTH_RATIOS,
+        _bone_length_rows,
+        _bone_length_terms,
         load_shape_basis,
     )
     from core.rig import load_rig
 
     tpl, basis, rig = load_template(), load_shape_basis(), load_rig()
-    terms = _arm_length_terms(tpl.V, basis.U, rig)
+    terms = _bone_length_terms(tpl.V, basis.U, rig)
     k = basis.U.shape[2]
-    J, r = _arm_length_rows(terms, np.zeros(k))
-    # the template's arms lie inside their bands and are alike: only the two L-R rows, ~0
-    assert J.shape == (len(ARM_BONE_RATIOS), k) and np.abs(r).max() < 1e-4
+    J, r = _bone_length_rows(terms, np.zeros(k))
+    # the template's arms and thighs lie inside their bands and are alike: only the L-R rows, ~0
+    assert J.shape == (len(BONE_LENGTH_RATIOS), k) and np.abs(r).max() < 1e-4
     # the rows are the lengths' first-order change (finite differences at a random shape)
     c = np.random.default_rng(0).normal(0.0, 1.0, k) * basis.sigma * 0.5
-    J, r = _arm_length_rows(terms, c)
+    J, r = _bone_length_rows(terms, c)
     dc = np.random.default_rng(1).normal(0.0, 1.0, k) * basis.sigma * 1e-4
-    _, r2 = _arm_length_rows(terms, c + dc)
+    _, r2 = _bone_length_rows(terms, c + dc)
     assert len(r2) == len(r)
     np.testing.assert_allclose(r2 - r, J @ dc, rtol=1e-3, atol=1e-9)
-    # a stature the arms are far too short for: every bone gets a row pulling it to the band
+    # a stature the limbs are far too short for: every bone gets a row pulling it to the band
     tall = {**terms, "s0": 3.0}
-    J, r = _arm_length_rows(tall, np.zeros(k))
-    assert len(r) == 2 * len(ARM_BONE_RATIOS) + len(ARM_BONE_RATIOS)
-    assert (r[:4] < -0.05).all()  # length - low * stature, metres
+    J, r = _bone_length_rows(tall, np.zeros(k))
+    assert len(r) == 2 * len(BONE_LENGTH_RATIOS) + len(BONE_LENGTH_RATIOS)
+    assert (r[: 2 * len(BONE_LENGTH_RATIOS)] < -0.05).all()  # length - low * stature, metres
+    # a centred side: its forearm gets a row to the centre even inside the band
+    from core.registration.shape_prior import ARM_BONE_CENTRES
+
+    J, r = _bone_length_rows(terms, np.zeros(k), centred="L")
+    assert len(r) == 1 + len(BONE_LENGTH_RATIOS)
+    stature = terms["s0"]
+    pa, pb = terms["joints"]["lowerarm01.L"][0], terms["joints"]["wrist.L"][0]
+    want = np.linalg.norm(pb - pa) - ARM_BONE_CENTRES["lowerarm01"] * stature
+    assert abs(r[0] - want) < 1e-12 and abs(r[0]) > 1e-4  # the template's 0.1359, not 0.135
