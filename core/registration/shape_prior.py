@@ -224,10 +224,10 @@ BONE_CHILD_JOINTS = {"upperarm01": "lowerarm01", "lowerarm01": "wrist", "upperle
 #: 17.70 -> 17.20, varied 40 8.95 -> 8.98; with :data:`ARM_BONE_CENTRES` for resting hands,
 #: booth 14.14, heavy 17.00, varied 9.13; with the thigh's band, booth 14.30 (landmarks 14.72
 #: -> 14.58), heavy 16.77 (landmarks 20.50 -> 19.92, closed_lowres-89 suspect -> good), varied
-#: VARIED_THIGH. Earlier, the wide forearm band (0.115–0.170) in every markerless stage (on
-#: 6a498d7): booth 19.95 -> 19.45, varied 10.46 -> 10.38, heavy 22.54 -> 22.75, and at 10 000
-#: per m² the heavy set broke (22.54 -> 32.80): the prior acts on the global shape
-#: coefficients, which also shape legs and trunk.
+#: 9.10 (landmarks 10.57 -> 10.46). Earlier, the wide forearm band (0.115–0.170) in every
+#: markerless stage (on 6a498d7): booth 19.95 -> 19.45, varied 10.46 -> 10.38, heavy 22.54 ->
+#: 22.75, and at 10 000 per m² the heavy set broke (22.54 -> 32.80): the prior acts on the
+#: global shape coefficients, which also shape legs and trunk.
 BONE_LENGTH_PRIOR = 100.0
 #: Rest length per stature an arm's bones are pulled to where the data cannot tell it
 #: (``fit_body_prior(bone_length_centred=)``: a band of no width): the shape space's mean (300
