@@ -864,17 +864,17 @@ def fit_markerless(
         # fit a heavy body's lost feet or arm stayed lost (raw-59/63 of --heavy; raw-59 0.456
         # vs 0.535), and near ties went either way (without the margin: heavy 20 18.37 -> 19.50
         # mm, 4 good -> suspect, each within 0.005)
-        # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
-        # flank of a closed mesh has data all down the thigh, and the first fit stretched its
-        # forearm (or left it short); a resting hand's forearm is pulled to the shape space's mean
-        # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
-        # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
         prev = res.body_prior
         assert prev is not None
         score = partial(
             two_way_score, round_index, body_ids=body_ids, scan_ids=scan_sample(hair.scan, 12000)
         )
         restart = PriorRestart(prev, score, margin=TIE_MARGIN)
+        # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
+        # flank of a closed mesh has data all down the thigh, and the first fit stretched its
+        # forearm (or left it short); a resting hand's forearm is pulled to the shape space's mean
+        # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
+        # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,

@@ -553,14 +553,13 @@ def _bone_length_rows(
     J_all, r_all = [], []
     stature = terms["s0"] + terms["gs"] @ c
     lengths: dict[tuple[str, str], tuple[float, np.ndarray]] = {}
-    child = BONE_CHILD_JOINTS
     for side in "LR":
         for bone, (lo, hi) in BONE_LENGTH_RATIOS.items():
             if side in centred and bone in ARM_BONE_CENTRES:
                 lo = hi = ARM_BONE_CENTRES[bone]
             (pa, Ga), (pb, Gb) = (
                 terms["joints"][f"{bone}.{side}"],
-                terms["joints"][f"{child[bone]}.{side}"],
+                terms["joints"][f"{BONE_CHILD_JOINTS[bone]}.{side}"],
             )
             d = (pb + Gb @ c) - (pa + Ga @ c)
             length = float(np.linalg.norm(d))
@@ -829,7 +828,7 @@ def fit_body_prior(
         if len(G_limb):  # elbows where the shape puts them along the arm, not slid
             H[:k, :k] += limb_prior * G_limb.T @ G_limb
             g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
-        if bone_terms is not None:  # arms of a human's length, left as long as right
+        if bone_terms is not None:  # limbs of a human's length, left as long as right
             J_a, r_a = _bone_length_rows(bone_terms, c, bone_length_centred)
             H[:k, :k] += bone_length_prior * J_a.T @ J_a
             g[:k] -= bone_length_prior * J_a.T @ r_a
