@@ -45,6 +45,7 @@ from core.registration.schedule import Schedule
 from core.registration.shape_prior import (
     BONE_LENGTH_PRIOR,
     BONE_PRIOR,
+    CLAVICLE_PRIOR,
     FOOT_PRIOR,
     HEAD_PRIOR,
     LEG_TWIST_PRIOR,
@@ -221,6 +222,9 @@ SEARCH_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
 #: search's short fits it changed which start won on heavy bodies: ``bench.realworld --heavy``
 #: raw-63 and raw-102 lost both arms).
 MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
+#: The soft-marker round's bone prior: the shape-space fits' and the clavicles'
+#: (:data:`~core.registration.shape_prior.CLAVICLE_PRIOR`).
+ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
@@ -880,7 +884,7 @@ def fit_markerless(
             callback=callback if last else None, retry=last, index=round_index, assess=last,
             retries=MARKERLESS_RETRIES, prior_restart=restart,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
-                "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": MARKERLESS_BONE_PRIOR,
+                "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting,
             },

@@ -156,6 +156,16 @@ BONE_PRIOR: tuple[tuple[str, float, float], ...] = (
 #: 64-107 mm off the truth). 0.03 turned them back only to 28-53° (raw-19 still 73 mm off); 0.1
 #: on the head bone alone left raw-19 at 47° (74 mm); 0.1 on head and neck01: 17-24°, 13-29 mm.
 HEAD_PRIOR: tuple[tuple[str, float, float], ...] = (("neck01", 0.1, 0.1), ("head", 0.1, 0.1))
+#: The markerless fit's prior on the clavicles' total rotation (same units, added to
+#: :data:`BONE_PRIOR`) in its soft-marker round only: the data barely split a shoulder's turn
+#: between clavicle and upper arm, and the first shape-space fit turned clavicles 15-33° with
+#: the upper arms turned back against them (``core.synth.scanner_outputs`` closed_plate-15: its
+#: Acromion 83 mm off the truth's). In every shape-space fit it cost the T-poses (a real T-pose
+#: raises the clavicles too: ``bench.realworld --wide`` 9.52 -> 9.89 mm); in the round only the
+#: landmarks gained everywhere (``bench/README.md``, stops 30-32).
+CLAVICLE_PRIOR: tuple[tuple[str, float, float], ...] = (
+    ("clavicle.L", 0.1, 0.1), ("clavicle.R", 0.1, 0.1),
+)  # fmt: skip
 #: The markerless fit's prior on the thighs' twist about their own axis (same units, added to
 #: :data:`BONE_PRIOR`): a nearly cylindrical leg's data barely turn it, and the fits of the closed
 #: and the raw delivery of one body twisted the legs 5-18° from the truth, differently.

@@ -521,3 +521,29 @@ def test_an_arm_fused_to_the_flank_keeps_a_forearm_of_a_human_length(tmp_path):
         ratio = np.linalg.norm(knee - hip) / stature
         assert ratio > lo - 0.005, (side, ratio)  # measured 0.209 (0.202 without the band)
     assert res.report.quality.quality != "good"  # hands fused to the thighs: it says so
+
+
+def test_the_soft_marker_round_keeps_the_clavicles_near_rest(tmp_path):
+    """closed_plate-15 (a closed mesh on a floor plate, BMI 33, arms 34° out): the first
+    shape-space fit turned both clavicles ~33° and the upper arms back against them, the
+    Acromions 83 / 84 mm off the truth's. The soft-marker round's clavicle prior
+    (:data:`core.registration.shape_prior.CLAVICLE_PRIOR`) turns them back."""
+    from scipy.spatial.transform import Rotation
+
+    from core.io import load_scan
+    from core.matching.markerless import fit_markerless
+    from core.synth.scanner_outputs import make_case
+    from core.template import load_template
+
+    case = make_case(15, "closed_plate")
+    scan, _ = load_scan(case.write(tmp_path / "plate.ply"))
+    truth = scan.frame.to_canonical(case.truth)
+    res = fit_markerless(scan)
+    assert res.body_prior is not None
+    lms = load_template().landmarks
+    for side in "LR":
+        turn = np.degrees(Rotation.from_matrix(res.body_prior.pose[f"clavicle.{side}"]).magnitude())
+        assert turn < 15.0, (side, turn)  # measured 9.7 / 9.2° (33.1 / 32.5 without)
+        i = lms[f"Acromion_{side}"]
+        off = np.linalg.norm(res.vertices[i] - truth[i]) * 1000
+        assert off < 78.0, (side, off)  # measured 69 / 71 mm (83 / 84 without)
