@@ -253,6 +253,9 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     from core.registration.quality import part_labels
 
     labels, pnames = part_labels()
+    row["part_corr_mean_mm"] = {
+        name: float(e[labels == i].mean() * MM) for i, name in enumerate(pnames)
+    }
     row["part_truth_offset_mm"] = {
         name: float(
             np.linalg.norm(result.vertices[labels == i].mean(0) - truth[labels == i].mean(0)) * MM
@@ -436,6 +439,7 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         *floor_lines(ok),
         f"correspondence to truth, mean averaged: {_f(mean('corr_mean_mm'), '{:.2f}')} mm, "
         f"p95 averaged {_f(mean('corr_p95_mm'), '{:.2f}')} mm",
+        *part_corr_lines(ok),
         *landmark_lines(ok),
         "closed-vs-raw twins (same body), mean vertex distance: "
         + (
@@ -519,6 +523,27 @@ def floor_lines(ok: list[dict[str, Any]]) -> list[str]:
             f"{pavg('part_fit_to_scan_mean_mm', p):.1f}"
             for p in parts
         ),
+    ]
+
+
+def part_corr_lines(ok: list[dict[str, Any]]) -> list[str]:
+    """A line: the correspondence to the truth by part (mean vertex distance, mm), averaged
+    over the fitted cases that have it, and each part's share of the whole body's error."""
+    rs = [r for r in ok if "part_corr_mean_mm" in r]
+    if not rs:
+        return []
+    from core.registration.quality import part_labels
+
+    labels, pnames = part_labels()
+    counts = np.bincount(labels, minlength=len(pnames))
+    avg = {p: float(np.mean([r["part_corr_mean_mm"][p] for r in rs])) for p in pnames}
+    total = sum(avg[p] * counts[i] for i, p in enumerate(pnames))
+    return [
+        "  correspondence by part, mean mm (share of the body's error): "
+        + ", ".join(
+            f"{p} {avg[p]:.1f} ({avg[p] * counts[i] / total * 100:.0f} %)"
+            for i, p in enumerate(pnames)
+        )
     ]
 
 

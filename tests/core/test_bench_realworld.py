@@ -168,3 +168,20 @@ def test_landmark_bias_is_the_mean_signed_offset():
         rows.append({"landmark_offset_mm": off})
     (line,) = landmark_bias_lines(rows)
     assert line.split(": ", 1)[1].startswith("Acromion_L (+0, +0, +15), ")
+
+
+def test_part_corr_lines_average_and_share_by_vertex_count():
+    """Two cases, every part 2 mm off but the head 10 / 20 mm: the head reads 15.0 mm and its
+    share is its vertices' part of the summed error."""
+    from bench.realworld import part_corr_lines
+    from core.registration.quality import part_labels
+
+    labels, names = part_labels()
+    rows = [{"part_corr_mean_mm": {p: 2.0 for p in names} | {"head": h}} for h in (10.0, 20.0)]
+    (line,) = part_corr_lines(rows)
+    n = np.bincount(labels, minlength=len(names))
+    head = names.index("head")
+    share = 15.0 * n[head] / (15.0 * n[head] + 2.0 * (n.sum() - n[head])) * 100
+    assert f"head 15.0 ({share:.0f} %)" in line
+    assert "torso 2.0 (" in line
+    assert part_corr_lines([{"seed": 1}]) == []
