@@ -48,6 +48,7 @@ from core.registration.shape_prior import (
     CLAVICLE_PRIOR,
     FOOT_PRIOR,
     HEAD_PRIOR,
+    LEG_CENTRE_PRIOR,
     LEG_TWIST_PRIOR,
     LIMB_PRIOR,
     PriorFit,
@@ -879,6 +880,8 @@ def fit_markerless(
         # forearm (or left it short); a resting hand's forearm is pulled to the shape space's mean
         # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
         # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
+        # and the thighs pulled gently to the mean length (the shape space slides the upper
+        # thigh's skin down the thigh to fit its surface a little closer: LEG_BONE_CENTRES)
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
@@ -886,7 +889,7 @@ def fit_markerless(
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
-                "bone_length_centred": resting,
+                "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
             },
             **options,
         )  # fmt: skip

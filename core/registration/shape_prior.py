@@ -248,6 +248,23 @@ BONE_LENGTH_PRIOR = 100.0
 #: off; -339's 0.154 -> 0.138, truth 0.137, hands 30/37 -> 20/11 mm; -322's 0.148, truth 0.149,
 #: pulled short: 13.7 -> 15.8 mm).
 ARM_BONE_CENTRES: dict[str, float] = {"lowerarm01": 0.135}
+#: Rest length per stature each thigh is pulled towards (``fit_body_prior(
+#: leg_length_centre=)``): the middle of :data:`LEG_BONE_RATIOS`' band (ANSUR II's mean thigh
+#: in the rig's joint-to-joint terms). Without markers the shape space fits a leg's surface
+#: 0.3-1.7 mm closer by sliding the upper thigh's skin 4-8 cm down the thigh (the crotch,
+#: trochanter and hip joint with it), a shape further from the mean (Mahalanobis 14-15 vs
+#: 10-11) than the body's best correspondence-aware shape in the space: off-model thighs came
+#: out 0.206-0.214 of the stature (truths 0.230-0.237; ``core.synth.scanner_outputs``
+#: closed_booth-310/331/337, raw-4), even from a clean rest-pose mesh of the truth (0.214 vs
+#: 0.232).
+LEG_BONE_CENTRES: dict[str, float] = {"upperleg01": 0.241}
+#: The markerless soft-marker round's weight (per m², in units of one data row, a tenth of
+#: :data:`BONE_LENGTH_PRIOR`) of the thighs' pull to :data:`LEG_BONE_CENTRES`
+#: (``bench.realworld``, landmarks / correspondence mean mm): booth 40 14.47 -> 13.67 / 14.25
+#: -> 14.26 (Trochanterion 39.8 -> 31, verdicts good 17 -> 19), varied 40 10.34 -> 9.96 / 9.10
+#: -> 9.07, wide 24 11.59 -> 11.06 / 9.60 -> 9.46, heavy 20 19.75 -> 19.25 / 16.75 -> 16.78.
+#: At 100 the knees came down instead (Patella 15 mm low): booth 13.80 / 14.35.
+LEG_CENTRE_PRIOR = 10.0
 
 
 def arm_pose(abduction_deg: float, sides: str = "LR") -> dict[str, np.ndarray]:
@@ -297,6 +314,7 @@ class PriorOptions:
     limb_prior: float = 0.0
     bone_length_prior: float = 0.0
     bone_length_centred: str = ""
+    leg_length_centre: float = 0.0
     fists: str = ""
     floor_y: float | None = None
     hand_length: bool = False
@@ -552,6 +570,33 @@ def _bone_length_terms(V0: np.ndarray, U: np.ndarray, rig: Rig) -> dict[str, Any
     }
 
 
+def _rest_bone_length(
+    terms: dict[str, Any], c: np.ndarray, bone: str, side: str
+) -> tuple[float, np.ndarray]:
+    """A bone's rest length (metres, head to :data:`BONE_CHILD_JOINTS`' joint) at shape ``c``
+    (k,) and its gradient (k,)."""
+    (pa, Ga), (pb, Gb) = (
+        terms["joints"][f"{bone}.{side}"],
+        terms["joints"][f"{BONE_CHILD_JOINTS[bone]}.{side}"],
+    )
+    d = (pb + Gb @ c) - (pa + Ga @ c)
+    length = float(np.linalg.norm(d))
+    return length, (d / max(length, 1e-9)) @ (Gb - Ga)
+
+
+def _leg_centre_rows(terms: dict[str, Any], c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual rows (metres) of the thighs' pull to :data:`LEG_BONE_CENTRES` at shape ``c``
+    (k,), linearised: Jacobian (m, k) and residuals (m,), a row per side and bone."""
+    stature = terms["s0"] + terms["gs"] @ c
+    J_all, r_all = [], []
+    for bone, centre in LEG_BONE_CENTRES.items():
+        for side in "LR":
+            length, dL = _rest_bone_length(terms, c, bone, side)
+            J_all.append(dL - centre * terms["gs"])
+            r_all.append(length - centre * stature)
+    return np.array(J_all), np.array(r_all)
+
+
 def _bone_length_rows(
     terms: dict[str, Any], c: np.ndarray, centred: str = ""
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -567,13 +612,7 @@ def _bone_length_rows(
         for bone, (lo, hi) in BONE_LENGTH_RATIOS.items():
             if side in centred and bone in ARM_BONE_CENTRES:
                 lo = hi = ARM_BONE_CENTRES[bone]
-            (pa, Ga), (pb, Gb) = (
-                terms["joints"][f"{bone}.{side}"],
-                terms["joints"][f"{BONE_CHILD_JOINTS[bone]}.{side}"],
-            )
-            d = (pb + Gb @ c) - (pa + Ga @ c)
-            length = float(np.linalg.norm(d))
-            dL = (d / max(length, 1e-9)) @ (Gb - Ga)
+            length, dL = _rest_bone_length(terms, c, bone, side)
             lengths[(bone, side)] = (length, dL)
             for edge, outside in ((lo, length < lo * stature), (hi, length > hi * stature)):
                 if outside:
@@ -618,6 +657,7 @@ def fit_body_prior(
     limb_prior: float = 0.0,
     bone_length_prior: float = 0.0,
     bone_length_centred: str = "",
+    leg_length_centre: float = 0.0,
     fists: str = "",
     floor_y: float | None = None,
     hand_length: bool = False,
@@ -681,6 +721,9 @@ def fit_body_prior(
     bone_length_centred : sides (``"L"``, ``"R"``) whose bones of :data:`ARM_BONE_CENTRES` the
         bone length prior pulls to that centre instead of holding in their band: arms whose data
         cannot tell their length (a hand fused to the thigh). Needs ``bone_length_prior`` > 0.
+    leg_length_centre : weight (per m², in units of one data row) of each thigh's rest length
+        off :data:`LEG_BONE_CENTRES` (e.g. :data:`LEG_CENTRE_PRIOR`); 0 (default): none. The
+        data barely tell where along the thigh its skin lies (:data:`LEG_BONE_CENTRES`).
     fists : sides (``"L"``, ``"R"``) whose fingers are curled into a fist
         (:data:`FIST_CURL_DEG`, :func:`core.rig.finger_rotations`), held fixed.
     floor_y : height (metres, scan frame, +Y up) below which no body vertex may go: vertices
@@ -740,7 +783,11 @@ def fit_body_prior(
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
-    bone_terms = _bone_length_terms(V0, U, art.rig) if bone_length_prior > 0 else None
+    bone_terms = (
+        _bone_length_terms(V0, U, art.rig)
+        if bone_length_prior > 0 or leg_length_centre > 0
+        else None
+    )
     for it in range(iterations):
         X = sim.apply(Xp)
         # correspondences in the scan frame; residuals in the posed template frame
@@ -838,10 +885,14 @@ def fit_body_prior(
         if len(G_limb):  # elbows where the shape puts them along the arm, not slid
             H[:k, :k] += limb_prior * G_limb.T @ G_limb
             g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
-        if bone_terms is not None:  # limbs of a human's length, left as long as right
-            J_a, r_a = _bone_length_rows(bone_terms, c, bone_length_centred)
+        if bone_terms is not None and bone_length_prior > 0:  # limbs of a human's length,
+            J_a, r_a = _bone_length_rows(bone_terms, c, bone_length_centred)  # left as right
             H[:k, :k] += bone_length_prior * J_a.T @ J_a
             g[:k] -= bone_length_prior * J_a.T @ r_a
+        if bone_terms is not None and leg_length_centre > 0:  # thighs' skin not slid
+            J_t, r_t = _leg_centre_rows(bone_terms, c)
+            H[:k, :k] += leg_length_centre * J_t.T @ J_t
+            g[:k] -= leg_length_centre * J_t.T @ r_t
         H += damping * np.diag(np.diag(H))
         delta = np.linalg.solve(H, g)
         c = c + delta[:k]

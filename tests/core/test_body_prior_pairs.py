@@ -6,7 +6,12 @@ from scipy.spatial import cKDTree
 
 from core.registration.correspondence import ScanIndex
 from core.registration.operators import vertex_normals
-from core.registration.shape_prior import _scan_to_template
+from core.registration.shape_prior import (
+    ShapeBasis,
+    _bone_length_terms,
+    _scan_to_template,
+    load_shape_basis,
+)
 from core.scan import Scan
 from core.template import load_template
 
@@ -53,17 +58,18 @@ def test_the_leg_twist_prior_weighs_twist_about_the_thigh_only() -> None:
         assert abs(vecs[:, 2] @ axis) > 0.95, name  # twisting it about its own axis does
 
 
-def test_the_bone_length_prior_rows_are_the_lengths_linearised_with_a_band() -> None:
-    from core.registration.shape_prior import (
-        BONE_LENGTH_RATIOS,
-        _bone_length_rows,
-        _bone_length_terms,
-        load_shape_basis,
-    )
+def _bone_terms() -> tuple[dict, ShapeBasis]:
+    """The bone length terms of the template and the shape basis."""
     from core.rig import load_rig
 
-    tpl, basis, rig = load_template(), load_shape_basis(), load_rig()
-    terms = _bone_length_terms(tpl.V, basis.U, rig)
+    basis = load_shape_basis()
+    return _bone_length_terms(load_template().V, basis.U, load_rig()), basis
+
+
+def test_the_bone_length_prior_rows_are_the_lengths_linearised_with_a_band() -> None:
+    from core.registration.shape_prior import BONE_LENGTH_RATIOS, _bone_length_rows
+
+    terms, basis = _bone_terms()
     k = basis.U.shape[2]
     J, r = _bone_length_rows(terms, np.zeros(k))
     # the template's arms and thighs lie inside their bands and are alike: only the L-R rows, ~0
@@ -89,3 +95,23 @@ def test_the_bone_length_prior_rows_are_the_lengths_linearised_with_a_band() -> 
     pa, pb = terms["joints"]["lowerarm01.L"][0], terms["joints"]["wrist.L"][0]
     want = np.linalg.norm(pb - pa) - ARM_BONE_CENTRES["lowerarm01"] * stature
     assert abs(r[0] - want) < 1e-12 and abs(r[0]) > 1e-4  # the template's 0.1359, not 0.135
+
+
+def test_the_leg_centre_rows_pull_each_thigh_to_its_centre() -> None:
+    """A row per thigh: its rest length minus :data:`LEG_BONE_CENTRES`' share of the stature,
+    linearised (finite differences); the template's thighs (0.253) are long of 0.241."""
+    from core.registration.shape_prior import LEG_BONE_CENTRES, _leg_centre_rows
+
+    terms, basis = _bone_terms()
+    k = basis.U.shape[2]
+    J, r = _leg_centre_rows(terms, np.zeros(k))
+    assert J.shape == (2 * len(LEG_BONE_CENTRES), k)
+    for i, side in enumerate("LR"):
+        pa, pb = terms["joints"][f"upperleg01.{side}"][0], terms["joints"][f"lowerleg01.{side}"][0]
+        want = np.linalg.norm(pb - pa) - LEG_BONE_CENTRES["upperleg01"] * terms["s0"]
+        assert abs(r[i] - want) < 1e-12 and r[i] > 0.01 * terms["s0"]  # 0.253 vs 0.241
+    c = np.random.default_rng(0).normal(0.0, 1.0, k) * basis.sigma * 0.5
+    J, r = _leg_centre_rows(terms, c)
+    dc = np.random.default_rng(1).normal(0.0, 1.0, k) * basis.sigma * 1e-4
+    _, r2 = _leg_centre_rows(terms, c + dc)
+    np.testing.assert_allclose(r2 - r, J @ dc, rtol=1e-3, atol=1e-9)
