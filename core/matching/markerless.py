@@ -51,6 +51,7 @@ from core.registration.shape_prior import (
     LEG_CENTRE_PRIOR,
     LEG_TWIST_PRIOR,
     LIMB_PRIOR,
+    TRUNK_PRIOR,
     PriorFit,
     arm_pose,
     fit_body_prior,
@@ -881,7 +882,9 @@ def fit_markerless(
         # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
         # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
         # and the thighs pulled gently to the mean length (the shape space slides the upper
-        # thigh's skin down the thigh to fit its surface a little closer: LEG_BONE_CENTRES)
+        # thigh's skin down the thigh to fit its surface a little closer: LEG_BONE_CENTRES);
+        # the spine's joints held at their template shares of the trunk (TRUNK_PRIOR: a heavy
+        # body's waist skin slid down the belly)
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
@@ -890,6 +893,7 @@ def fit_markerless(
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
+                "trunk_prior": TRUNK_PRIOR,
             },
             **options,
         )  # fmt: skip

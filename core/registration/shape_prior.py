@@ -191,6 +191,21 @@ FOOT_PRIOR: tuple[tuple[str, float, float], ...] = (
 LIMB_CHAINS: tuple[tuple[str, str, str], ...] = (
     ("upperarm01.L", "lowerarm01.L", "wrist.L"), ("upperarm01.R", "lowerarm01.R", "wrist.R"),
 )  # fmt: skip
+#: Chains ``(root, middle, end)`` whose middle joint the trunk prior (``fit_body_prior(
+#: trunk_prior=)``) keeps near its template share of the way: the spine's joints between the
+#: pelvis (``root``) and the neck.
+TRUNK_CHAINS: tuple[tuple[str, str, str], ...] = tuple(
+    ("root", f"spine0{i}", "neck01") for i in (4, 3, 2, 1)
+)
+#: Weight of the trunk prior (per m², as :data:`LIMB_PRIOR`) in the markerless fit's
+#: soft-marker round. A heavy body's data barely tell where on the belly its skin lies, and the
+#: shape space's fat slid the waist's skin down the belly (``core.synth.scanner_outputs``
+#: closed_lowres-69, BMI 49: navel 80 mm and iliac crests 92 mm off the truth's, the waist's
+#: spine joint 52 mm low; 42 and 61 mm with it). ``bench.realworld`` (correspondence;
+#: landmarks mm): heavy 20 16.78 -> 16.58; 19.25 -> 18.97 (navel 49 -> 34), booth 40 14.26 ->
+#: 14.04; 13.67 -> 13.44, varied 40 9.07 -> 8.89; 9.96 -> 9.77, wide 24 9.46 -> 9.25; 11.06 ->
+#: 10.68. In every shape-space fit too: heavy 17.01 (landmarks 18.21), the limbs worse.
+TRUNK_PRIOR = 100.0
 #: Curl (degrees per finger joint) of a fisted hand in the body prior (``fit_body_prior(fists=)``):
 #: the middle of the 55-80° of ``core.synth.realworld``'s fists.
 FIST_CURL_DEG = 70.0
@@ -312,6 +327,7 @@ class PriorOptions:
     basis: ShapeBasis | None = None
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR
     limb_prior: float = 0.0
+    trunk_prior: float = 0.0
     bone_length_prior: float = 0.0
     bone_length_centred: str = ""
     leg_length_centre: float = 0.0
@@ -529,11 +545,13 @@ def _bone_metrics(
     return out
 
 
-def _limb_rows(V0: np.ndarray, U: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
-    """Rows (m, k) and offsets (m,) of the limb-proportion prior: for each of
-    :data:`LIMB_CHAINS`, the middle joint's offset (metres) along the rest root→end axis from the
-    point at the template's share of the way, ``G @ c + g0`` for shape coefficients ``c`` (the
-    joints are linear in the vertices: ``core.rig.joint_positions``)."""
+def _limb_rows(
+    V0: np.ndarray, U: np.ndarray, rig: Rig, chains: tuple[tuple[str, str, str], ...] = LIMB_CHAINS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (m, k) and offsets (m,) of the limb-proportion prior: for each of ``chains``
+    (:data:`LIMB_CHAINS`, :data:`TRUNK_CHAINS`), the middle joint's offset (metres) along the
+    rest root→end axis from the point at the template's share of the way, ``G @ c + g0`` for
+    shape coefficients ``c`` (joints are linear in the vertices: ``core.rig.joint_positions``)."""
     idx, w = rig.head_reg_idx, rig.head_reg_w
 
     def joint(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -541,7 +559,7 @@ def _limb_rows(V0: np.ndarray, U: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.
         return w[j] @ V0[idx[j]], np.einsum("q,qck->ck", w[j], U[idx[j]])
 
     G, g0 = [], []
-    for a, b, e in LIMB_CHAINS:
+    for a, b, e in chains:
         (pa, Ga), (pb, Gb), (pe, Ge) = joint(a), joint(b), joint(e)
         axis = pe - pa
         share = float((pb - pa) @ axis / (axis @ axis))
@@ -655,6 +673,7 @@ def fit_body_prior(
     point_weight: float = 0.0,
     bone_prior: tuple[tuple[str, float, float], ...] = BONE_PRIOR,
     limb_prior: float = 0.0,
+    trunk_prior: float = 0.0,
     bone_length_prior: float = 0.0,
     bone_length_centred: str = "",
     leg_length_centre: float = 0.0,
@@ -711,6 +730,9 @@ def fit_body_prior(
         elbows of heavy bodies 10-16 cm down the arm (rest forearm / upper arm 0.29-0.66,
         truths 0.87-0.96; ``core.synth.scanner_outputs`` raw-16/28, closed_lowres-16/24), arm
         centroids 51-84 mm off the truth's.
+    trunk_prior : weight (per m², as ``limb_prior``) of the spine's joints' offsets along the
+        root→neck axis of the rest body from their template shares (:data:`TRUNK_CHAINS`); 0
+        (default): none.
     bone_length_prior : weight (per m², in units of one data row) of the arms' and thighs'
         rest bone lengths beyond their :data:`BONE_LENGTH_RATIOS` bands of the stature and of
         the left and right bones' difference (e.g. :data:`BONE_LENGTH_PRIOR`); 0 (default):
@@ -783,6 +805,9 @@ def fit_body_prior(
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
+    G_trunk, g_trunk = (
+        _limb_rows(V0, U, art.rig, TRUNK_CHAINS) if trunk_prior > 0 else (np.zeros((0, k)), [])
+    )
     bone_terms = (
         _bone_length_terms(V0, U, art.rig)
         if bone_length_prior > 0 or leg_length_centre > 0
@@ -885,6 +910,9 @@ def fit_body_prior(
         if len(G_limb):  # elbows where the shape puts them along the arm, not slid
             H[:k, :k] += limb_prior * G_limb.T @ G_limb
             g[:k] -= limb_prior * G_limb.T @ (G_limb @ c + g_limb)
+        if len(G_trunk):  # the spine's joints where the shape puts them, the torso's skin not slid
+            H[:k, :k] += trunk_prior * G_trunk.T @ G_trunk
+            g[:k] -= trunk_prior * G_trunk.T @ (G_trunk @ c + g_trunk)
         if bone_terms is not None and bone_length_prior > 0:  # limbs of a human's length,
             J_a, r_a = _bone_length_rows(bone_terms, c, bone_length_centred)  # left as right
             H[:k, :k] += bone_length_prior * J_a.T @ J_a

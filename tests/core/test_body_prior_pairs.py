@@ -115,3 +115,22 @@ def test_the_leg_centre_rows_pull_each_thigh_to_its_centre() -> None:
     dc = np.random.default_rng(1).normal(0.0, 1.0, k) * basis.sigma * 1e-4
     _, r2 = _leg_centre_rows(terms, c + dc)
     np.testing.assert_allclose(r2 - r, J @ dc, rtol=1e-3, atol=1e-9)
+
+
+def test_the_trunk_rows_are_the_spine_joints_offsets_along_the_trunk() -> None:
+    """Per spine joint of :data:`TRUNK_CHAINS`, its offset along the pelvis→neck axis from its
+    template share: 0 on the template; a shape moving that joint's surrounding vertices 1 m
+    down moves its row by about -1 (the axis is nearly vertical), the others' barely."""
+    from core.registration.shape_prior import TRUNK_CHAINS, _limb_rows
+    from core.rig import load_rig
+
+    tpl, rig = load_template(), load_rig()
+    n = len(tpl.V)
+    G, g0 = _limb_rows(tpl.V, np.zeros((n, 3, 1)), rig, TRUNK_CHAINS)
+    assert G.shape == (len(TRUNK_CHAINS), 1) and np.abs(g0).max() < 1e-9
+    i = [b for _, b, _ in TRUNK_CHAINS].index("spine03")
+    U = np.zeros((n, 3, 1))
+    U[rig.head_reg_idx[rig.index("spine03")], 1, 0] = -1.0
+    G, _ = _limb_rows(tpl.V, U, rig, TRUNK_CHAINS)
+    assert -1.0 < G[i, 0] < -0.85  # -0.92: one of its vertices also places the pelvis
+    assert np.abs(np.delete(G[:, 0], i)).max() < 0.1  # the others only through that vertex
