@@ -878,7 +878,7 @@ def fit_markerless(
         restart = PriorRestart(prev, score, margin=TIE_MARGIN)
         # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
         # flank of a closed mesh has data all down the thigh, and the first fit stretched its
-        # forearm (or left it short); a resting hand's forearm is pulled to the shape space's mean
+        # forearm (or left it short); a resting hand's forearm is pulled to a real adult's mean
         # length (:data:`~core.registration.shape_prior.ARM_BONE_CENTRES`), the other bones held
         # in their bands (a heavy body's thigh, its skin slid by the shape space's fat, too short)
         # and the thighs pulled gently to the mean length (the shape space slides the upper
@@ -902,7 +902,7 @@ def fit_markerless(
     if resting:
         notes.append(
             f"hands resting on the body ({', '.join(resting)}): placed by the arms' data and the "
-            "body prior (forearms of the shape space's mean length), not by the scan around them "
+            "body prior (forearms of an adult's mean length), not by the scan around them "
             "(it cannot tell hand from thigh, nor where the forearm ends)"
         )
     if fists:

@@ -220,13 +220,13 @@ LIMB_PRIOR = 100.0
 #: (mean 0.150, SD 0.0065, ±4 %) and upper arm (acromion–radiale, from the acromion above the
 #: joint) 0.171–0.214; the off-model bodies of ``core.synth.realworld`` (bones ±7 %), joint to
 #: joint, 0.138–0.169 and 0.126–0.162. The upper arm's band holds all of them with a margin.
-#: The forearm's is the shape space's mean joint-to-joint forearm (0.135 of the stature) ± 2.6
-#: ANSUR SDs of the ratio (its p0.5–p99.5 spread): where the data cannot tell the forearm's
-#: length (an arm fused to the flank in a closed mesh) the fit stops at 0.152, not at 0.170
-#: (closed_booth-339: rest forearm 0.18 of the stature, truth 0.137). Off-model forearms past it
-#: (the generator's longest, 0.162) are held at most ~6 % short where the data do not pull them.
+#: The forearm's runs from the shape space's mean joint-to-joint forearm (0.135 of the stature)
+#: − 2.6 ANSUR SDs of the ratio to :data:`ARM_BONE_CENTRES`' (0.145) + 3: where the data cannot
+#: tell the forearm's length (an arm fused to the flank in a closed mesh) the fit stops at
+#: 0.165, not at 0.18 (closed_booth-339: rest forearm 0.18 of the stature, truth 0.137). It was
+#: 0.118-0.152 (stop 31), which held a real-sized forearm short (below, ARM_BONE_CENTRES).
 ARM_BONE_RATIOS: dict[str, tuple[float, float]] = {
-    "upperarm01": (0.125, 0.185), "lowerarm01": (0.118, 0.152),
+    "upperarm01": (0.125, 0.185), "lowerarm01": (0.118, 0.165),
 }  # fmt: skip
 #: Plausible rest lengths of the thigh per stature (joint to joint: ``upperleg01`` →
 #: ``lowerleg01``, the knee). ANSUR II (dev split) reads thigh (trochanterion height − lateral
@@ -255,14 +255,19 @@ BONE_CHILD_JOINTS = {"upperarm01": "lowerarm01", "lowerarm01": "wrist", "upperle
 #: global shape coefficients, which also shape legs and trunk.
 BONE_LENGTH_PRIOR = 100.0
 #: Rest length per stature an arm's bones are pulled to where the data cannot tell it
-#: (``fit_body_prior(bone_length_centred=)``: a band of no width): the shape space's mean (300
-#: random bodies of the basis: forearm 0.1354 ± 0.0088; the template's 0.1359). The markerless
-#: fit's soft-marker round centres the forearm of an arm whose hand rests on the body (fused to
-#: the thigh in a closed mesh): ``bench.realworld --booth`` 40 correspondence 14.73 -> 14.14 mm
-#: (closed_booth-311's forearm 0.122 -> 0.134 of the stature, truth 0.147, hands 50 -> 29 mm
-#: off; -339's 0.154 -> 0.138, truth 0.137, hands 30/37 -> 20/11 mm; -322's 0.148, truth 0.149,
-#: pulled short: 13.7 -> 15.8 mm).
-ARM_BONE_CENTRES: dict[str, float] = {"lowerarm01": 0.135}
+#: (``fit_body_prior(bone_length_centred=)``: a band of no width): a real adult's forearm in the
+#: rig's joint-to-joint terms. Not the shape space's mean (0.1354 ± 0.0088 over 300 random
+#: bodies; the template's 0.1359): the template's span is 0.958 of its stature, ANSUR II's
+#: soldiers' 1.022 ± 0.029 (women) / 1.033 ± 0.027 (men), and the off-model bodies of
+#: ``core.synth.realworld``, whose span is ANSUR's (1.027 ± 0.037), have forearms of 0.143 ±
+#: 0.007; the template's arm chain scaled to ANSUR's span gives 0.148. The markerless fit's
+#: soft-marker round centres the forearm of an arm whose hand rests on the body (fused to the
+#: thigh in a closed mesh). ``bench.realworld`` (correspondence; landmarks mm), 0.135 -> 0.145
+#: with the forearm band to 0.165: booth 40 14.04 -> 13.88; 13.44 -> 13.50 (closed_booth-311
+#: 17.0 -> 13.2, -317 17.2 -> 12.7, -322 16.2 -> 13.6, -323 13.4 -> 9.5; -315 17.8 -> 21.1),
+#: varied 40 8.89 -> 8.73; 9.77 -> 9.61 (cloud-6 16.8 -> 11.2, its truth's forearm 0.161),
+#: wide 24 9.25 -> 9.17; 10.68 -> 10.63, heavy 20 16.58 -> 16.70; 18.97 -> 18.78.
+ARM_BONE_CENTRES: dict[str, float] = {"lowerarm01": 0.145}
 #: Rest length per stature each thigh is pulled towards (``fit_body_prior(
 #: leg_length_centre=)``): the middle of :data:`LEG_BONE_RATIOS`' band (ANSUR II's mean thigh
 #: in the rig's joint-to-joint terms). Without markers the shape space fits a leg's surface
