@@ -191,6 +191,23 @@ def template_operators(
     return ops
 
 
+def fit_data_mask(ops: TemplateOperators, fists: str = "") -> np.ndarray:
+    """(13380,) bool: the vertices that take data in a fit — all but the template's regions
+    that scan badly (``data_mask``), except that the fingers of a hand fitted as a fist
+    (``fists``: sides "L", "R") take data: curled, their backs and knuckles are the fist's
+    scanned surface. Without their data the fist's end was the shape space's, not the scan's:
+    the fisted hands of ``bench.realworld``'s closed_lowres-16/24 hung 10-13 mm past the
+    scanned fist, their wrists 15-19 mm down the forearm (hands 24-25 mm off the truth; with
+    their data 11-15 mm; the raw twins' 13-17 -> 5-8 mm)."""
+    if not fists:
+        return ops.full.data_mask
+    tpl = ops.template
+    dm = ops.full.data_mask.copy()
+    for x in fists:
+        dm |= tpl.part_mask(f"hand_{x}") & np.asarray(tpl.mask("fingers"), bool)
+    return dm
+
+
 def _check_scan(scan: Scan) -> None:
     V = np.asarray(scan.V)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) < 100:
@@ -306,9 +323,15 @@ def iter_fit(
         np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
     )
     Vs = frame.to_solver_template(body.V)
-    full = replace(ops.full, V=Vs)
+    # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
+    dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "")
+    full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
-    low = replace(ops.low, V=Vs[ops.low.vertex_ids]) if needs_low else None
+    low = (
+        replace(ops.low, V=Vs[ops.low.vertex_ids], data_mask=dm[ops.low.vertex_ids])
+        if needs_low
+        else None
+    )
     state = _StageState()
     for si, st in enumerate(schedule.stages):
         want = low if st.resolution == "low" else full
@@ -456,7 +479,8 @@ def initial_body(
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
-            data_mask=ops.full.data_mask, max_distance=max_distance, marker_floor=floor,
+            data_mask=fit_data_mask(ops, options.fists), max_distance=max_distance,
+            marker_floor=floor,
             vertex_weight=vw, **options.kwargs(),
         )  # fmt: skip
 
@@ -696,9 +720,9 @@ def final_report(
     final = index.closest_compatible(
         X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg
     )
-    weights_full = final.weights * ops.full.data_mask
+    weights_full = final.weights * full.data_mask
     report.no_data_fraction = float(np.mean(~(final.weights > 0)))
-    report.template_region_fraction = float(np.mean(~ops.full.data_mask))
+    report.template_region_fraction = float(np.mean(~full.data_mask))
     if not assess:
         report.seconds = time.perf_counter() - t_start
         return FitResult(
