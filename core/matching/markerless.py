@@ -32,7 +32,11 @@ from core.registration.fit import (
     fit,
     template_operators,
 )
-from core.registration.hand_length import free_hand_ends, scanned_hand_roundness
+from core.registration.hand_length import (
+    free_hand_ends,
+    scanned_hand_roundness,
+    tip_allowance,
+)
 from core.registration.initialization import Similarity
 from core.registration.quality import (
     THRESHOLDS,
@@ -858,11 +862,13 @@ def fit_markerless(
             for x in resting:
                 for lm in ("Dactylion", "Ulnar_styloid", "Radial_styloid"):
                     marks.pop(f"{lm}_{x}", None)
-            # an open hand clear of the body: its fingertip where the scanned hand ends (the
-            # first fit's came from the shape coefficients: the fingers take no data)
+            # an open hand clear of the body: its fingertip just past where the scanned hand
+            # ends (the first fit's came from the shape coefficients: the fingers take no data;
+            # a coarse mesh rounds the tip off: :func:`tip_allowance`)
             skip = fists + resting
+            tip = tip_allowance(round_index)
             for x, end in free_hand_ends(round_index, res.vertices, skip=skip).items():
-                marks[f"Dactylion_{x}"] = end.point
+                marks[f"Dactylion_{x}"] = end.point + tip * end.axis
         # the round's body prior from the landmarks' alignment and rest pose, and from where the
         # previous fit's ended; the latter is kept where it scores better (two-way) by more than
         # the search's near-tie margin: from the rest pose a head could settle turned

@@ -8,6 +8,7 @@ where the point lies on a hole boundary (so holes are filled by smoothness, not 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -62,6 +63,20 @@ class ScanIndex:
         self.point_weight = confidence_weight(scan.confidence, confidence_full_at)
         self.boundary = np.asarray(scan.boundary, dtype=bool)
         self.tree = cKDTree(self.points, leafsize=KD_LEAFSIZE)
+
+    @cached_property
+    def spacing_m(self) -> float:
+        """The scan's sampling: median distance (metres) from a point to its nearest neighbour,
+        over up to 3000 points (a fixed sample). Raw multi-view scans read 1.7 mm, closed meshes
+        of 60-100 k vertices 2.7-2.9, booth meshes of 10-20 k vertices 4.9-7.3
+        (``core.synth.scanner_outputs``)."""
+        n = len(self.points)
+        if n < 2:
+            return 0.0
+        rng = np.random.default_rng(0)
+        sample = self.points[rng.choice(n, min(3000, n), replace=False)]
+        d, _ = self.tree.query(sample, k=2, workers=KD_WORKERS)
+        return float(np.median(d[:, 1]))
 
     def closest_compatible(
         self,

@@ -9,7 +9,7 @@ their fingertips 25-50 mm past the scanned mitten. The refinement keeps what the
 about the wrist:
 
 - a hand clear of the body (:func:`core.registration.quality.hand_body_gaps` above
-  :data:`FREE_HAND_GAP_M`): the middle fingertip goes :data:`TIP_ALLOWANCE_M` past the scan's
+  :data:`FREE_HAND_GAP_M`): the middle fingertip goes :func:`tip_allowance` past the scan's
   hand end along the hand's axis (:func:`scanned_hand_end`);
 - a hand at the body (its end fused with the thigh or hip in a closed mesh, not measurable):
   its length is held in ANSUR II's band of hand length / stature (:data:`HAND_STATURE_BAND`).
@@ -43,10 +43,16 @@ FREE_HAND_GAP_M = 0.02
 #: fists end 28-48 mm past a fist's own wrist → fingertip length, 71-105 mm, of open hands'
 #: 164-215 mm); closed booth meshes' open hands fitted 1.17-1.19× long needed 0.77-0.8
 HAND_SCALE_LIMITS = (0.75, 1.10)
-#: metres the middle fingertip lies past the scanned hand's end: on the truths of
-#: ``bench.realworld``'s open hands the end fell 1-3 mm short of it on raw scans and point
-#: clouds, 0-14 mm on closed meshes (mittens round the fingertips off)
-TIP_ALLOWANCE_M = 0.005
+#: the middle fingertip lies this many times the scan's sampling (``ScanIndex.spacing_m``) past
+#: the scanned hand's end (:func:`tip_allowance`). On the truths of ``bench.realworld``'s open
+#: hands clear of the body (diagnostic script, 39 hands) the scanned end fell short of the
+#: fingertip by 2.1 mm on raw scans (sampling 1.7 mm), 1.9 on dense ones (2.4), 7.0 on closed
+#: meshes of 14-20 k vertices (4.9-5.8) and 8.6 on booth meshes of 10-15 k (6.0-7.3): a coarse
+#: mesh's smoothing rounds the mitten's tip off. Closed meshes of 60-100 k vertices (2.9):
+#: -1.0 (their tips not rounded). It was 5 mm whatever the scan.
+TIP_PER_SPACING = 1.2
+#: the allowance's bounds, metres
+TIP_ALLOWANCE_RANGE_M = (0.002, 0.010)
 #: corrections of less than this (metres at the fingertip) are not made
 MIN_CORRECTION_M = 0.006
 #: the scale ramps in over this distance past the wrist (metres): the wrist ring stays put
@@ -90,13 +96,22 @@ def _wrist_axis(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np
     return wrist, a / max(length, 1e-9), length
 
 
+def tip_allowance(index: ScanIndex) -> float:
+    """Metres the middle fingertip lies past the scanned hand's end on this scan:
+    :data:`TIP_PER_SPACING` times its sampling, within :data:`TIP_ALLOWANCE_RANGE_M`."""
+    lo, hi = TIP_ALLOWANCE_RANGE_M
+    return float(np.clip(TIP_PER_SPACING * index.spacing_m, lo, hi))
+
+
 @dataclass
 class HandEnd:
-    """Where a scanned hand ends: ``reach_m`` past the wrist along the hand's axis (metres) and
-    the scan point there (``point``, (3,), scan frame)."""
+    """Where a scanned hand ends: ``reach_m`` past the wrist along the hand's axis (metres),
+    the scan point there (``point``, (3,), scan frame) and the hand's unit axis (``axis``,
+    (3,), wrist to middle fingertip of the fitted body)."""
 
     reach_m: float
     point: np.ndarray
+    axis: np.ndarray
 
 
 def _scanned_hand_points(
@@ -131,11 +146,12 @@ def scanned_hand_end(
     """Where the scanned hand of the body ``X`` (13380, 3) ends along its hand's axis: the
     :data:`END_RANK`-th furthest of the hand's scan points (:func:`_scanned_hand_points`); None
     when the scan holds fewer than :data:`MIN_HAND_POINTS` of them."""
-    ids, t, _, _ = _scanned_hand_points(index, X, side, template or load_template())
+    tpl = template or load_template()
+    ids, t, _, _ = _scanned_hand_points(index, X, side, tpl)
     if len(ids) < MIN_HAND_POINTS:
         return None
     k = np.argsort(t)[-END_RANK]
-    return HandEnd(float(t[k]), index.points[ids[k]].copy())
+    return HandEnd(float(t[k]), index.points[ids[k]].copy(), _wrist_axis(X, side, tpl)[1])
 
 
 #: share of the fitted hand's length (from the wrist) whose scan points make the hand's
@@ -203,7 +219,7 @@ def correct_hand_lengths(
         if gaps[side] > FREE_HAND_GAP_M:
             end = ends.get(side)
             source = "scan" if end is not None else ""
-            target = end.reach_m + TIP_ALLOWANCE_M if end is not None else length
+            target = end.reach_m + tip_allowance(index) if end is not None else length
         else:
             source, target = "stature", float(np.clip(length, lo * stature_m, hi * stature_m))
         scale = target / max(length, 1e-9)

@@ -114,3 +114,27 @@ def test_a_heavy_bodys_open_hands_end_where_the_scan_does(realworld_case):
         off = np.linalg.norm(res.vertices[m].mean(0) - truth[m].mean(0)) * 1000
         assert off < 20.0, (s, off)  # measured 12 / 15
         assert res.report.quality.parts[f"hand_{s}"].hand_tip_gap_m < 0.015
+
+
+def test_tip_allowance_follows_the_scans_sampling():
+    """The fingertip's allowance past the scanned hand's end scales with the scan's sampling
+    (a coarse booth mesh rounds the mitten's tip off), within its bounds."""
+    from core.registration.correspondence import ScanIndex
+    from core.registration.hand_length import TIP_ALLOWANCE_RANGE_M, TIP_PER_SPACING, tip_allowance
+    from core.scan import Scan
+
+    def grid(step: float) -> ScanIndex:  # a flat sheet of points `step` metres apart
+        u = np.arange(0.0, 0.6, step)
+        P = np.array([(x, y, 0.0) for x in u for y in u])
+        N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+        return ScanIndex(
+            Scan(
+                V=P, F=None, normals=N, confidence=np.ones(len(P)), boundary=np.zeros(len(P), bool)
+            )
+        )
+
+    fine, mid, coarse = grid(0.001), grid(0.005), grid(0.02)
+    assert abs(mid.spacing_m - 0.005) < 1e-9 and abs(coarse.spacing_m - 0.02) < 1e-9
+    assert tip_allowance(fine) == TIP_ALLOWANCE_RANGE_M[0]  # 1.2 mm: held at the lower bound
+    assert abs(tip_allowance(mid) - TIP_PER_SPACING * 0.005) < 1e-9
+    assert tip_allowance(coarse) == TIP_ALLOWANCE_RANGE_M[1]  # 24 mm: held at the upper bound
