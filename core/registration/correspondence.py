@@ -228,3 +228,26 @@ def turn_normals_against_body(
         f"normals turned at {int(turned.sum()):,} of {len(turned):,} points: their "
         f"estimated orientation pointed into {what}"
     )
+
+
+def other_foot_matches(
+    X: np.ndarray,
+    rows: np.ndarray,
+    targets: np.ndarray,
+    toe_side: np.ndarray,
+    foot_side: np.ndarray,
+) -> np.ndarray:
+    """(len(rows),) bool: data pairs (vertex ``rows[i]`` of the body ``X`` (n, 3), scan point
+    ``targets[i]``) of a toe whose point lies nearer to the other foot of ``X`` than to its own:
+    with the feet close together a foot's toes would take the other foot's data. ``toe_side``
+    (n,) int: 1 / 2 for the left / right foot's toe vertices, 0 for the rest; ``foot_side``
+    (n,) int: the same for every vertex of each foot."""
+    out = np.zeros(len(rows), bool)
+    s = toe_side[rows]
+    chk = np.flatnonzero(s > 0)
+    if len(chk) == 0:
+        return out
+    feet = np.flatnonzero(foot_side > 0)
+    _, j = cKDTree(X[feet]).query(targets[chk], workers=KD_WORKERS)
+    out[chk] = foot_side[feet[j]] != s[chk]
+    return out

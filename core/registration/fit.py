@@ -23,7 +23,11 @@ import numpy as np
 
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
-from core.registration.correspondence import CONFIDENCE_FULL_AT, ScanIndex
+from core.registration.correspondence import (
+    CONFIDENCE_FULL_AT,
+    ScanIndex,
+    other_foot_matches,
+)
 from core.registration.initialization import MarkerAlignment, Similarity, align_markers
 from core.registration.markers import CONSISTENT_WEIGHT_FLOOR, screen_markers
 from core.registration.multires import Hierarchy, build_hierarchy
@@ -42,7 +46,13 @@ from core.registration.quality import (
     part_labels,
 )
 from core.registration.schedule import Schedule, Stage
-from core.registration.shape_prior import PriorFit, PriorOptions, arm_pose, fit_body_prior
+from core.registration.shape_prior import (
+    PriorFit,
+    PriorOptions,
+    arm_pose,
+    feet_sides,
+    fit_body_prior,
+)
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
@@ -191,18 +201,31 @@ def template_operators(
     return ops
 
 
-def fit_data_mask(ops: TemplateOperators, fists: str = "") -> np.ndarray:
+#: a scan sampled finer than this (``ScanIndex.spacing_m``, metres) shows the toes: they take
+#: data (:func:`fit_data_mask`). Raw multi-view scans read 1.7 mm, closed meshes of 60-100 k
+#: vertices 2.7-2.9; booth meshes of 10-20 k vertices (4.9-7.3) fuse and round the toes off
+#: (their toes' data put ``bench.realworld``'s closed_lowres-4/-8 feet 6 -> 14 / 5 -> 12 mm off).
+TOE_DATA_MAX_SPACING_M = 0.004
+
+
+def fit_data_mask(ops: TemplateOperators, fists: str = "", toes: bool = False) -> np.ndarray:
     """(13380,) bool: the vertices that take data in a fit — all but the template's regions
     that scan badly (``data_mask``), except that the fingers of a hand fitted as a fist
     (``fists``: sides "L", "R") take data: curled, their backs and knuckles are the fist's
     scanned surface. Without their data the fist's end was the shape space's, not the scan's:
     the fisted hands of ``bench.realworld``'s closed_lowres-16/24 hung 10-13 mm past the
     scanned fist, their wrists 15-19 mm down the forearm (hands 24-25 mm off the truth; with
-    their data 11-15 mm; the raw twins' 13-17 -> 5-8 mm)."""
-    if not fists:
+    their data 11-15 mm; the raw twins' 13-17 -> 5-8 mm).
+    ``toes``: the toes take data too (a finely sampled scan, :data:`TOE_DATA_MAX_SPACING_M`;
+    without them a foot's length was the shape space's: forefeet 8-10 mm long at the toe tip),
+    a toe's pairs with the other foot's data dropped
+    (:func:`core.registration.correspondence.other_foot_matches`)."""
+    if not fists and not toes:
         return ops.full.data_mask
     tpl = ops.template
     dm = ops.full.data_mask.copy()
+    if toes:
+        dm |= np.asarray(tpl.mask("toes"), bool)
     for x in fists:
         dm |= tpl.part_mask(f"hand_{x}") & np.asarray(tpl.mask("fingers"), bool)
     return dm
@@ -324,7 +347,11 @@ def iter_fit(
     )
     Vs = frame.to_solver_template(body.V)
     # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
-    dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "")
+    dm = fit_data_mask(
+        ops,
+        PriorOptions.of(prior_options).fists if shape_prior else "",
+        toes=index.spacing_m < TOE_DATA_MAX_SPACING_M,
+    )
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (
@@ -333,6 +360,8 @@ def iter_fit(
         else None
     )
     state = _StageState()
+    if (dm & (feet_sides(len(dm))[0] > 0)).any():  # the toes take data
+        state.toe_guard = feet_sides(len(dm))
     for si, st in enumerate(schedule.stages):
         want = low if st.resolution == "low" else full
         assert want is not None
@@ -479,7 +508,10 @@ def initial_body(
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
-            data_mask=fit_data_mask(ops, options.fists), max_distance=max_distance,
+            data_mask=fit_data_mask(
+                ops, options.fists, toes=index.spacing_m < TOE_DATA_MAX_SPACING_M
+            ),
+            max_distance=max_distance,
             marker_floor=floor,
             vertex_weight=vw, **options.kwargs(),
         )  # fmt: skip
@@ -587,6 +619,7 @@ class _StageState:
     solver: AffineSolver | None = None
     x: np.ndarray | None = None
     x_reg: np.ndarray | None = None
+    toe_guard: tuple[np.ndarray, np.ndarray] | None = None  # (toe sides, foot sides) (n,)
 
     def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
         """Switch to resolution ``want`` (start from A0, or blend low-resolution affines up)."""
@@ -653,6 +686,14 @@ def one_stage(
                 frame.to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
             )
             w = corr.weights * level.data_mask
+            if state.toe_guard is not None:  # a toe's data on the other foot is no toe's
+                toe_side, foot_side = state.toe_guard
+                vid = level.vertex_ids
+                cand = np.flatnonzero(w > 0)
+                bad = other_foot_matches(
+                    frame.to_world(Xs), cand, corr.targets[cand], toe_side[vid], foot_side[vid]
+                )
+                w[cand[bad]] = 0.0
             d_idx = np.flatnonzero(w > 0)
             d_w, d_t = w[d_idx], frame.to_solver(corr.targets[d_idx])
         else:

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from core.registration.correspondence import ScanIndex
+from core.registration.correspondence import ScanIndex, other_foot_matches
 from core.registration.hand_length import HandLength, correct_hand_lengths
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
@@ -648,6 +648,19 @@ def _bone_length_rows(
     return np.array(J_all), np.array(r_all)
 
 
+def feet_sides(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) int8 toe sides and foot sides of the template (1 left, 2 right, 0 elsewhere;
+    :func:`core.registration.correspondence.other_foot_matches`); zeros for another mesh."""
+    tpl = load_template()
+    if n != tpl.n_vertices:
+        return np.zeros(n, np.int8), np.zeros(n, np.int8)
+    toes = np.asarray(tpl.mask("toes"), bool)
+    foot = np.zeros(n, np.int8)
+    for k, x in ((1, "L"), (2, "R")):
+        foot[tpl.part_mask(f"foot_{x}")] = k
+    return np.where(toes, foot, 0).astype(np.int8), foot
+
+
 def fit_body_prior(
     index: ScanIndex | None,
     V0: np.ndarray,
@@ -791,6 +804,8 @@ def fit_body_prior(
         }
     B = len(POSE_BONES)
     mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
+    toe_side, foot_side = feet_sides(n)
+    toe_guard = bool((mask & (toe_side > 0)).any())
     sub = np.zeros(n, bool)
     sub[::subsample] = True
     floor = np.zeros(len(marker_vid)) if marker_floor is None else np.asarray(marker_floor, float)
@@ -829,6 +844,8 @@ def fit_body_prior(
                 X[cand], N[cand], max_distance=md, max_angle_deg=max_angle_deg, project=False
             )
             ok = corr.weights > 0
+            if toe_guard:  # a toe's data on the other foot is no toe's
+                ok[ok] = ~other_foot_matches(X, cand[ok], corr.targets[ok], toe_side, foot_side)
             rows = cand[ok]
             P = corr.targets[ok]
             w = corr.weights[ok]

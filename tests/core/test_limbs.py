@@ -137,3 +137,28 @@ def test_a_fists_fingers_take_data(realworld_case):
         assert past < 6.0, (x, past)  # measured 0.3-0.6 mm (9.8 without the fingers' data)
         assert slid < 10.0, (x, slid)  # measured 2.9-5.5 mm (14.9)
         assert corr < 18.0, (x, corr)  # measured 11.4-12.8 mm (24.2)
+
+
+def test_toes_take_data_on_finely_sampled_scans_and_never_the_other_foots():
+    """Toes take data where the scan is sampled finer than ``TOE_DATA_MAX_SPACING_M`` (a coarse
+    booth mesh fuses and rounds them off), and a toe's data pair whose scan point lies nearer
+    the other foot is dropped (feet 1-7 cm apart: raw-19/31's right toes had moved 34-51 mm
+    onto the left foot)."""
+    from core.registration.correspondence import other_foot_matches
+    from core.registration.fit import fit_data_mask, template_operators
+    from core.registration.shape_prior import feet_sides
+    from core.template import load_template
+
+    tpl, ops = load_template(), template_operators()
+    toes = np.asarray(tpl.mask("toes"), bool)
+    assert not ops.full.data_mask[toes].any() and not fit_data_mask(ops)[toes].any()
+    assert fit_data_mask(ops, toes=True)[toes].all()
+    toe_side, foot_side = feet_sides(tpl.n_vertices)
+    assert (toe_side > 0).sum() == toes.sum() and set(np.unique(toe_side)) == {0, 1, 2}
+    X = np.asarray(tpl.V, float)
+    left_toes = np.flatnonzero(toe_side == 1)[:50]
+    right_foot = np.flatnonzero(foot_side == 2)[:50]
+    own = other_foot_matches(X, left_toes, X[left_toes], toe_side, foot_side)
+    other = other_foot_matches(X, left_toes, X[right_foot], toe_side, foot_side)
+    not_toes = other_foot_matches(X, right_foot, X[left_toes], np.zeros_like(toe_side), foot_side)
+    assert not own.any() and other.all() and not not_toes.any()
