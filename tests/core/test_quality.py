@@ -338,11 +338,13 @@ def _hand_offsets(X: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     }
 
 
-@pytest.mark.parametrize(("kind", "seed"), [("closed_hair", 1), ("cloud", 6)])
+@pytest.mark.parametrize(("kind", "seed"), [("closed_hair", 1), ("closed_touching", 5)])
 def test_lost_hand_of_a_real_world_case_is_failed_and_named(tmp_path, kind, seed):
     # core.synth.scanner_outputs cases whose fast marker fit without the arm bones' pose prior
     # (bone_prior=(), the prior before it; other team's marker convention, no retries) puts a
-    # hand 20-27 cm off the truth: the verdict must fail and name that hand
+    # hand 20-27 cm off the truth: the verdict must fail and name that hand. (cloud-6 was one;
+    # since the toes of finely sampled scans take data its hand stays 9 cm off: closed_touching-5,
+    # its left hand 20 cm off, took its place.)
     scan, markers, truth = _real_world_case(tmp_path, kind, seed)
     po = PriorOptions(bone_prior=())
     res = fit(scan, markers, schedule=Schedule.fast(), retry=False, prior_options=po)
