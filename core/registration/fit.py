@@ -208,6 +208,12 @@ def template_operators(
 TOE_DATA_MAX_SPACING_M = 0.004
 
 
+def toes_take_data(index: ScanIndex) -> bool:
+    """Whether the scan is sampled finely enough to show the toes
+    (:data:`TOE_DATA_MAX_SPACING_M`)."""
+    return index.spacing_m < TOE_DATA_MAX_SPACING_M
+
+
 def fit_data_mask(ops: TemplateOperators, fists: str = "", toes: bool = False) -> np.ndarray:
     """(13380,) bool: the vertices that take data in a fit — all but the template's regions
     that scan badly (``data_mask``), except that the fingers of a hand fitted as a fist
@@ -347,11 +353,8 @@ def iter_fit(
     )
     Vs = frame.to_solver_template(body.V)
     # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
-    dm = fit_data_mask(
-        ops,
-        PriorOptions.of(prior_options).fists if shape_prior else "",
-        toes=index.spacing_m < TOE_DATA_MAX_SPACING_M,
-    )
+    toes = toes_take_data(index)
+    dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "", toes)
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (
@@ -360,7 +363,7 @@ def iter_fit(
         else None
     )
     state = _StageState()
-    if (dm & (feet_sides(len(dm))[0] > 0)).any():  # the toes take data
+    if toes:  # a toe's pairs with the other foot's data are dropped
         state.toe_guard = feet_sides(len(dm))
     for si, st in enumerate(schedule.stages):
         want = low if st.resolution == "low" else full
@@ -508,9 +511,7 @@ def initial_body(
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
-            data_mask=fit_data_mask(
-                ops, options.fists, toes=index.spacing_m < TOE_DATA_MAX_SPACING_M
-            ),
+            data_mask=fit_data_mask(ops, options.fists, toes_take_data(index)),
             max_distance=max_distance,
             marker_floor=floor,
             vertex_weight=vw, **options.kwargs(),
@@ -682,8 +683,9 @@ def one_stage(
                 A_full = (ops.hierarchy.upsample @ A.reshape(level.n, 12)).reshape(-1, 3, 4)
                 X_full = apply_affines(A_full, full.V)
             N = vertex_normals(X_full, F_full)[level.vertex_ids]
+            Xw = frame.to_world(Xs)
             corr = index.closest_compatible(
-                frame.to_world(Xs), N, max_distance=max_distance, max_angle_deg=max_angle_deg
+                Xw, N, max_distance=max_distance, max_angle_deg=max_angle_deg
             )
             w = corr.weights * level.data_mask
             if state.toe_guard is not None:  # a toe's data on the other foot is no toe's
@@ -691,7 +693,7 @@ def one_stage(
                 vid = level.vertex_ids
                 cand = np.flatnonzero(w > 0)
                 bad = other_foot_matches(
-                    frame.to_world(Xs), cand, corr.targets[cand], toe_side[vid], foot_side[vid]
+                    Xw, cand, corr.targets[cand], toe_side[vid], foot_side[vid]
                 )
                 w[cand[bad]] = 0.0
             d_idx = np.flatnonzero(w > 0)
