@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, cKDTree
 
 from core.geometry import MeshDistance
 from core.io.frame import rotation_for_up
@@ -237,6 +237,19 @@ def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
     return F[lab[F[:, 0]] == big]
 
 
+def mouth_pocket_mask(rings: int = 3) -> np.ndarray:
+    """(13380,) bool: the template's mouth cavity (``eyes_mouth`` without the eyes' rims) and
+    the lips around its opening (``rings`` edge rings of the skin)."""
+    tpl = load_template()
+    em = np.asarray(tpl.mask("eyes_mouth"), bool)
+    m = em & (tpl.V[:, 1] < tpl.V[tpl.landmarks["Sellion"], 1])
+    E = np.asarray(tpl.edges, np.int64)
+    for _ in range(rings):
+        m = m | np.bincount(E[:, 0], m[E[:, 1]], len(m)).astype(bool)
+        m = m | np.bincount(E[:, 1], m[E[:, 0]], len(m)).astype(bool)
+    return m
+
+
 def closed_mesh(
     V: np.ndarray,
     F: np.ndarray,
@@ -327,6 +340,12 @@ def closed_mesh(
             closed = ndimage.binary_closing(occ[sl], structure=ball, border_value=0)
             occ[sl] |= closed & near
         info["mitten_m"] = mitten_m
+    # the template's mouth is an open pocket reaching 9 cm back into the throat: a scanner sees
+    # closed lips, and booth software never opens a tunnel there (at 10-14 mm voxels the thin
+    # lips vanished and left a 6 cm gap across the face at the mouth): the pocket is solid
+    pocket = V[mouth_pocket_mask()]
+    sl, C = box(pocket.min(axis=0), pocket.max(axis=0))
+    occ[sl] |= (Delaunay(pocket).find_simplex(C.reshape(-1, 3)) >= 0).reshape(C.shape[:3])
     if hair_in is not None:
         head = V[tpl.part_mask("head")]
         sl, C = box(head.min(axis=0) - 0.1, head.max(axis=0) + np.array([0.1, 0.08, 0.1]))
