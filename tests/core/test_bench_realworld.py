@@ -139,6 +139,24 @@ def test_twins_report_each_fits_slide_along_the_up_axis():
     assert "part_up_mm" not in t
 
 
+def test_twins_weighed_by_area_count_the_hands_by_their_skin():
+    """Twins apart only in the hands (10 mm): by vertex 10 mm × the hands' 24 % of the
+    template's vertices, by area 10 mm × their 4 % of its skin."""
+    from bench.realworld import twins
+
+    tpl = load_template()
+    V = np.asarray(tpl.V, float)
+    hands = tpl.part_mask("hand_L") | tpl.part_mask("hand_R")
+    B = V.copy()
+    B[hands, 2] += 0.010
+    rows = [{"seed": 1, "kind": "closed_lowres", "_fit_body": V},
+            {"seed": 1, "kind": "raw", "_fit_body": B}]  # fmt: skip
+    (t,) = twins(rows)
+    assert t["mean_mm"] == pytest.approx(10.0 * hands.mean(), rel=1e-6)
+    assert 0.2 < t["area_mm"] < 0.6  # the hands' share of the skin
+    assert t["no_hands_mm"] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_landmark_lines_average_over_cases_and_name_the_worst():
     """Two cases: every landmark 2 mm off in one and 4 mm in the other, but the Crotch 30 mm off
     in the second: mean (2 + 4) / 2 + 13 / 62, the Crotch named worst at 16 mm."""
