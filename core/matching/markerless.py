@@ -243,6 +243,15 @@ SEARCH_POINT_WEIGHT = 0.1
 #: best articulated start by 0.245-0.67, never the search's choice; dropping its three
 #: articulated fits saves ~1 s CPU per markerless fit, the chosen start unchanged.
 RIGID_KEEP_MARGIN = 0.05
+#: Where the best rigid candidate matches less than this share of the template within 1.5 cm,
+#: the best rigid candidate standing the other way up goes on to the arm hypotheses too: the
+#: rigid fits of a heavy body with its arms against it cannot tell up from down. It gets the
+#: middle arm hypothesis, and the others where that start beats every start so far.
+#: closed_booth-305 of ``bench.realworld --booth`` (BMI 38, ponytail, arms touching): its rigid
+#: candidates read 7-9 % (head-down 1.546 and 1.586, upright 1.608, past the margin); its
+#: articulated head-down starts 1.315-1.391, the upright ones 1.127-1.152 — without them the
+#: body was fitted head-down (1.02 m from the truth, verdict failed), with them 20 mm.
+RIGID_POOR_COVERAGE = 0.2
 
 
 #: Band of heights (shares of the body's height from the soles) whose depth sets the search's
@@ -406,6 +415,10 @@ def search_starts(
     plain = [r for r in rigid if r[2] == 1.0]
     hypotheses = arm_hypotheses(scan)
     chosen = [r for r in plain[:keep] if r[0] <= plain[0][0] + RIGID_KEEP_MARGIN]
+    flip = []  # rigid fits that cannot tell up from down: the best the other way up goes on
+    if plain and plain[0][4].coverage < RIGID_POOR_COVERAGE:
+        ways = {_stands_head_down(r[4].similarity) for r in chosen}
+        flip = [r for r in plain if _stands_head_down(r[4].similarity) not in ways][:1]
     starts: list[Start] = []
 
     def arms_start(r: tuple, abd: float) -> Start:
@@ -419,11 +432,16 @@ def search_starts(
 
     for r in chosen:
         starts += [arms_start(r, abd) for abd in hypotheses]
+    mid_abd = ARM_HYPOTHESES[len(ARM_HYPOTHESES) // 2]
+    for r in flip:  # the middle arm hypothesis; the others where it beats every start so far
+        st = arms_start(r, mid_abd)
+        if st.score < min(x.score for x in starts):
+            starts += [arms_start(r, abd) for abd in hypotheses if abd != mid_abd]
+        starts.append(st)
     wide = [r for r in rigid if r[2] != 1.0]
     if wide:
         # a heavy body's rigid scores read 1.5-1.6 whichever way up or round: each candidate
         # of the widened template gets the middle arm hypothesis, the best one the others
-        mid_abd = ARM_HYPOTHESES[len(ARM_HYPOTHESES) // 2]
         tried = [(arms_start(r, mid_abd), r) for r in wide]
         starts += [st for st, _ in tried]
         best = min(tried, key=lambda x: x[0].score)[1]
@@ -446,9 +464,15 @@ TIE_MARGIN = 0.03
 POOR_TIE_MARGIN = 0.06
 
 
+def _stands_head_down(sim: Similarity) -> bool:
+    """Whether the template → scan similarity ``sim`` stands the template head-down along the
+    scan's up axis."""
+    return bool(sim.R[1, 1] < 0)
+
+
 def _head_down(start: Start) -> bool:
     """Whether ``start`` stands the template head-down along the scan's up axis."""
-    return bool(start.similarity.R[1, 1] < 0)
+    return _stands_head_down(start.similarity)
 
 
 def near_tied(starts: list[Start], min_coverage: float) -> list[Start]:

@@ -211,6 +211,9 @@ def test_rigid_runner_up_far_behind_gets_no_arm_hypotheses(monkeypatch):
 
     scan, _ = _scan(np.eye(3))
     index = ScanIndex(scan)
+    # (its rigid fits match 17 % of the template: the best head-down candidate's middle arm
+    # start joins the search, RIGID_POOR_COVERAGE; not this test's subject)
+    monkeypatch.setattr(ml, "RIGID_POOR_COVERAGE", 0.0)
     starts, scores = ml.search_starts(scan, index)
     # (the average template's candidates; a BMI 37 body's trunk also brings the widened one's)
     rigid = sorted(s["score"] for s in scores if s["stage"] == "rigid" and s["girth"] == 1.0)
@@ -246,6 +249,33 @@ def test_a_heavy_body_is_searched_with_a_template_of_its_girth(monkeypatch):
     plain, _ = ml.search_starts(scan, index)
     assert plain[0].similarity.R[1, 1] < -0.9, plain[0].label  # head down
     assert plain[0].score > starts[0].score
+
+
+def test_rigid_candidates_that_cannot_tell_up_from_down_go_on_both_ways(monkeypatch):
+    """closed_booth-305 (BMI 38, ponytail, arms against the body): its rigid candidates match
+    7-9 % of the template, the two head-down ones best; the best upright one, past the keep
+    margin, goes on to the middle arm hypothesis, beats every start (upright 1.13 vs head-down
+    1.32) and gets the others too; without it the body was fitted head-down (1.02 m from the
+    truth)."""
+    import core.matching.markerless as ml
+    from core.io import detect_frame, prepare_scan
+    from core.registration.correspondence import ScanIndex
+    from core.scan import RawMesh
+    from core.synth.scanner_outputs import make_case
+
+    c = make_case(305, "closed_booth")
+    scan = prepare_scan(RawMesh(V=c.V, F=np.asarray(c.F)), detect_frame(c.V))
+    index = ScanIndex(scan)
+    starts, scores = ml.search_starts(scan, index)
+    rigid = [s for s in scores if s["stage"] == "rigid" and s["girth"] == 1.0]
+    assert max(s["coverage"] for s in rigid) < ml.RIGID_POOR_COVERAGE
+    assert starts[0].similarity.R[1, 1] > 0.9, starts[0].label  # head up
+    up = [st for st in starts if st.similarity.R[1, 1] > 0.9]
+    assert len(up) == len(ml.ARM_HYPOTHESES)  # it beat the rest: every arm hypothesis
+    monkeypatch.setattr(ml, "RIGID_POOR_COVERAGE", 0.0)  # the kept candidates only
+    kept, _ = ml.search_starts(scan, index)
+    assert all(st.similarity.R[1, 1] < -0.9 for st in kept), [st.label for st in kept]
+    assert kept[0].score > starts[0].score + 0.1
 
 
 def test_a_poor_best_start_widens_the_near_tie():
