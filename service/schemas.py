@@ -323,6 +323,11 @@ class PartQualityOut(BaseModel):
         None,
         description="feet: left foot's centre left of the right's, torso frame (m; < 0 crossed)",
     )
+    sternum_proportion: float | None = Field(
+        None,
+        description="torso: the Substernale's share of navel -> suprasternal notch over the "
+        "template's, max(r, 1/r)",
+    )
 
 
 class FitQualityOut(BaseModel):
