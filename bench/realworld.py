@@ -296,7 +296,7 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     truth along the up axis per quality part (``part_up_mm``: (closed, raw); the twins' along-
     surface difference is mostly a slide of torso and legs along it)."""
     from core.geometry import MeshDistance, vertex_normals
-    from core.registration.quality import _vertex_areas, part_labels
+    from core.registration.quality import part_labels, vertex_areas
     from core.template import load_template
 
     tpl = load_template()
@@ -327,7 +327,7 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "mean_mm": float(d.mean()),
                 # per unit of body surface: the template's dense head and hands (54 % of its
                 # vertices, 13 % of its area) weigh as much as their skin, not their vertex count
-                "area_mm": float(np.average(d, weights=_vertex_areas((A + B) / 2, F))),
+                "area_mm": float(np.average(d, weights=vertex_areas((A + B) / 2, F))),
                 "no_hands_mm": float(d[~hands].mean()),
                 "part_mm": {n: float(d[labels == i].mean()) for i, n in enumerate(pnames)},
                 "normal_mm": float(along_n.mean()),

@@ -552,7 +552,7 @@ def hand_body_gaps(X: np.ndarray, template: Template | None = None) -> dict[str,
     }
 
 
-def _vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """(n,) a third of the area of the triangles F (m, 3) around each vertex of V (n, 3)."""
     return np.bincount(F.ravel(), np.repeat(_triangle_areas(V, F) / 3.0, 3), minlength=len(V))
 
@@ -568,7 +568,7 @@ def head_figures(X: np.ndarray, template: Template | None = None) -> tuple[float
     """
     tpl = template or load_template()
     X = np.asarray(X, dtype=np.float64)
-    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
+    areas = vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
     head = tpl.part_mask("head")
     head_sim = umeyama(tpl.V[head], X[head], areas[head])
     turn = float(
@@ -591,7 +591,7 @@ FOOT_END_SHARE = 0.2
 def _torso_rotation(X: np.ndarray, tpl: Template) -> np.ndarray:
     """(3, 3) rotation of the least-squares similarity taking the template's torso onto the
     body ``X``'s (area-weighted, as in :func:`head_figures`)."""
-    areas = _vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
+    areas = vertex_areas(tpl.V, np.asarray(tpl.F, dtype=np.int64))
     torso = tpl.part_mask("torso")
     return umeyama(tpl.V[torso], X[torso], areas[torso]).R
 

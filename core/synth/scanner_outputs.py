@@ -239,7 +239,9 @@ def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
 
 def mouth_pocket_mask(rings: int = 3) -> np.ndarray:
     """(13380,) bool: the template's mouth cavity (``eyes_mouth`` without the eyes' rims) and
-    the lips around its opening (``rings`` edge rings of the skin)."""
+    the lips around its opening: ``rings`` passes over the template's edges, each growing the
+    mask along both edge directions in turn (so up to two edges far in one pass; 3 passes reach
+    about as far as 5 exact rings, ``core.assets.build.dilate``)."""
     tpl = load_template()
     em = np.asarray(tpl.mask("eyes_mouth"), bool)
     m = em & (tpl.V[:, 1] < tpl.V[tpl.landmarks["Sellion"], 1])
