@@ -231,6 +231,17 @@ MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
 #: The soft-marker round's bone prior: the shape-space fits' and the clavicles'
 #: (:data:`~core.registration.shape_prior.CLAVICLE_PRIOR`).
 ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR
+#: Gauss-Newton iterations of the soft-marker round's body prior from the landmarks' alignment
+#: and rest pose (the default 12 stopped it moving 2-3 mm per iteration, mean over the body;
+#: at 24, 0.3 mm). ``bench.realworld`` (stop 35), correspondence mean 12 -> 24: varied 40
+#: 8.21 -> 7.89 mm, booth 40 12.46 -> 12.00, palms 20 10.40 -> 9.77, wide 24 8.44 -> 8.57,
+#: heavy 20 14.79 -> 14.93; about 0.35 s CPU more per fit (twice that with a retry).
+ROUND_ITERATIONS = 24
+#: Iterations of the round's second body prior, from the previous fit (it starts converged:
+#: 24 iterations gave the same five sets to the last digit).
+RESTART_ITERATIONS = 12
+#: Iterations of the body prior of the round's quality retry (:data:`MARKERLESS_RETRIES`).
+RETRY_ITERATIONS = 12
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
@@ -636,7 +647,12 @@ def arm_reach(X: np.ndarray, side: str) -> float:
 #: hands L+R -> L); the arm starts' body priors ended 2-9 mm from the first fit's (raw-24: 151 mm,
 #: failed). Dropping the other three changes the kept attempt of raw-9 (corr 18.55 -> 18.38 mm)
 #: and closed_touching-5 (18.72 -> 21.26 mm), same verdicts and parts; −5.5 s CPU per such fit.
-MARKERLESS_RETRIES = tuple(r for r in RETRIES if "part_weight" in r[1])
+#: Its body prior runs :data:`RETRY_ITERATIONS` (as the round's did before
+#: :data:`ROUND_ITERATIONS`): the retry path is the markerless fit's slowest (raw-35, 190 k
+#: points: 8.4 s CPU before, 9.5 s with the retry's prior at 24 iterations too).
+MARKERLESS_RETRIES = tuple(
+    (name, {**o, "iterations": RETRY_ITERATIONS}) for name, o in RETRIES if "part_weight" in o
+)
 
 
 def _turned(start: Start, M: np.ndarray) -> Start:
@@ -905,7 +921,7 @@ def fit_markerless(
         score = partial(
             two_way_score, round_index, body_ids=body_ids, scan_ids=scan_sample(hair.scan, 12000)
         )
-        restart = PriorRestart(prev, score, margin=TIE_MARGIN)
+        restart = PriorRestart(prev, score, margin=TIE_MARGIN, iterations=RESTART_ITERATIONS)
         # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
         # flank of a closed mesh has data all down the thigh, and the first fit stretched its
         # forearm (or left it short); a resting hand's forearm is pulled to a real adult's mean
@@ -921,6 +937,7 @@ def fit_markerless(
             retries=MARKERLESS_RETRIES, prior_restart=restart,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
+                "iterations": ROUND_ITERATIONS,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR,
@@ -951,6 +968,12 @@ def fit_markerless(
         rep.notes.append(
             f"markerless refinement: {rounds} body-prior rounds with the landmarks predicted by "
             f"the previous round as soft markers ({n_warn} left out as far from the body)"
+            + (
+                ""
+                if res.body_prior is None
+                else f"; the last round's body prior moved the body "
+                f"{res.body_prior.last_step_m * 1000:.2f} mm (mean) in its last iteration"
+            )
         )
         rep.markers_used, rep.markers_dropped, rep.marker_residuals_m = [], [], {}
     res.report.notes.append(

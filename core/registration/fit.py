@@ -444,11 +444,14 @@ class PriorRestart:
         better (``core.matching.markerless.two_way_score``).
     margin : the earlier fit's start is kept only where it scores lower by more than this (a
         near tie keeps the usual start).
+    iterations : Gauss-Newton iterations of the second fit (None: as the usual one's); it
+        starts from a converged fit.
     """
 
     prior: PriorFit
     score: Callable[[np.ndarray], float]
     margin: float = 0.0
+    iterations: int | None = None
 
 
 @dataclass
@@ -514,7 +517,7 @@ def initial_body(
             data_mask=fit_data_mask(ops, options.fists, toes_take_data(index)),
             max_distance=max_distance,
             marker_floor=floor,
-            vertex_weight=vw, **options.kwargs(),
+            vertex_weight=vw, measure=False, **options.kwargs(),
         )  # fmt: skip
 
     prior = prior_from(align.similarity, po)
@@ -522,7 +525,12 @@ def initial_body(
         p0 = prior_restart.prior
         again = prior_from(
             p0.similarity,
-            replace(po, initial_pose=p0.pose, initial_coefficients=p0.coefficients),
+            replace(
+                po,
+                initial_pose=p0.pose,
+                initial_coefficients=p0.coefficients,
+                iterations=prior_restart.iterations or po.iterations,
+            ),
         )
         s_new, s_again = prior_restart.score(prior.X), prior_restart.score(again.X)
         use_again = s_again < s_new - prior_restart.margin
@@ -540,7 +548,8 @@ def initial_body(
     report.notes.append(
         f"body prior: {len(prior.coefficients)} shape coefficients, "
         f"{len(prior.pose)} bone rotations; marker rms {prior.rms_marker_m * 1000:.1f} mm, "
-        f"data rms {prior.rms_data_m * 1000:.1f} mm"
+        f"data rms {prior.rms_data_m * 1000:.1f} mm; its last iteration moved it "
+        f"{prior.last_step_m * 1000:.2f} mm (mean)"
     )
     if prior.hand_lengths:
         report.notes.append(
@@ -915,7 +924,11 @@ def fit(
             o["prior_options"] = replace(po, initial_pose=pose)
         elif "part_weight" in opt:
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
+            o["prior_options"] = replace(
+                po,
+                bidirectional=bool(opt["bidirectional"]),
+                iterations=int(opt.get("iterations", po.iterations)),
+            )
         else:
             o.update(opt)
         r = _run(scan, markers, callback, o)

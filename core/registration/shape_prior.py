@@ -377,10 +377,13 @@ class PriorFit:
     rms_marker_m: float
     rms_data_m: float
     marker_residuals_m: np.ndarray  # (km,) per marker, after the fit
-    data_cost_m: float  # rms template→scan distance, unmatched vertices counted as 5 cm
-    coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm
+    data_cost_m: float  # rms template→scan distance, unmatched counted as 5 cm (NaN: unmeasured)
+    coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm (or NaN)
     marker_weights: np.ndarray  # (km,) final robust weight of each marker, fraction of full
     hand_lengths: list[HandLength] = field(default_factory=list)  # hands set to their length
+    #: mean vertex displacement of the last iteration (metres, scan frame): how far from
+    #: converged the fit stopped
+    last_step_m: float = float("nan")
 
 
 def marker_weights(
@@ -496,8 +499,11 @@ class _Articulation:
         """Skin-weighted bone rotations Σ_b w_ib R_b at vertices ``rows``: (len(rows), 3, 3)."""
         return aux["Rb"][rows]
 
-    def pose_jacobian(self, aux: dict, rows: np.ndarray) -> np.ndarray:
-        """d X[rows] / d ω (world-frame rotation increments): (len(rows), 3, 3·B)."""
+    def pose_jacobian(
+        self, aux: dict, rows: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """d X[rows] / d ω (world-frame rotation increments): (len(rows), 3, 3·B), written
+        into ``out`` (a view of that shape, e.g. a slice of a larger Jacobian) when given."""
         n, nr, B, J = aux["n"], len(rows), len(self.bones), self.rig.n_joints
         pos = np.full(n, -1)
         pos[rows] = np.arange(nr)
@@ -514,7 +520,11 @@ class _Articulation:
         Y = S @ self.desc4  # (nr, 4B): W, y_x, y_y, y_z
         Wa, pj = Y[:, :B], aux["pj"][self.bones]
         vx, vy, vz = (Y[:, (k + 1) * B : (k + 2) * B] - Wa * pj[:, k] for k in range(3))
-        out = np.zeros((nr, 3, 3 * B))  # -[v]_× per bone, bone a in columns 3a..3a+2
+        if out is None:
+            out = np.zeros((nr, 3, 3 * B))
+        else:
+            out[...] = 0.0
+        # -[v]_× per bone, bone a in columns 3a..3a+2
         out[:, 0, 1::3], out[:, 0, 2::3] = vz, -vy
         out[:, 1, 0::3], out[:, 1, 2::3] = -vz, vx
         out[:, 2, 0::3], out[:, 2, 1::3] = vy, -vx
@@ -698,6 +708,7 @@ def fit_body_prior(
     fists: str = "",
     floor_y: float | None = None,
     hand_length: bool = False,
+    measure: bool = True,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
 
@@ -775,6 +786,8 @@ def fit_body_prior(
         where it is clear of the body, into ANSUR II's band of the stature where it is not
         (:func:`core.registration.hand_length.correct_hand_lengths`; the fingers take no data,
         so the coefficients alone gave the length: 4-19 % long on closed booth meshes).
+    measure : with a scan, measure the result's ``data_cost_m`` and ``coverage`` (one more
+        correspondence query; the markerless search scores its starts by them), else NaN.
     """
     if index is None and len(marker_vid) < 3:
         raise ValueError("fit_body_prior needs a scan or at least 3 markers")
@@ -821,6 +834,7 @@ def fit_body_prior(
     w = np.zeros(0)
     damping = 1e-3
     rms_d = float("nan")
+    last_step = float("nan")
     Xp, aux = art.pose(shaped(c), local)
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
@@ -874,10 +888,11 @@ def fit_body_prior(
         Qm = ((marker_pos - sim.t) @ sim.R) / sim.s
         uniq, inv = np.unique(np.r_[rows, marker_vid], return_inverse=True)
         Rb = art.blended_rotations(aux, uniq)
-        Jc_u = np.einsum("rab,rbk->rak", Rb, U[uniq])  # (u, 3, k)
-        Jw_u = art.pose_jacobian(aux, uniq)  # (u, 3, 3B)
-        J_u = np.concatenate([Jc_u, Jw_u], axis=2)  # (u, 3, k + 3B), each row's is J_u[inv]
         nu, K = len(uniq), k + 3 * B
+        # (u, 3, k + 3B), each row's is J_u[inv]: shape then pose columns, filled in place
+        J_u = np.empty((nu, 3, K))
+        np.einsum("rab,rbk->rak", Rb, U[uniq], out=J_u[:, :, :k])
+        art.pose_jacobian(aux, uniq, out=J_u[:, :, k:])
         nd = len(rows)
         inv_d, inv_m = inv[:nd], inv[nd:]
         sw = np.sqrt(w)
@@ -953,7 +968,9 @@ def fit_body_prior(
             local[a] = Rp.T @ dR[a] @ Rp @ local[a]
         # similarity from markers and data pairs on the updated body
         rest = shaped(c)
+        Xp_before = Xp
         Xp, aux = art.pose(rest, local)
+        last_step = float(np.linalg.norm(Xp - Xp_before, axis=1).mean() * sim.s)
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
         # without markers, closest-point pairs bias the scale down: hold it (shape modes carry size)
@@ -965,7 +982,7 @@ def fit_body_prior(
     rms_m = float(np.sqrt(np.mean(res_m**2))) if len(res_m) else float("nan")
     cost = float("nan")
     coverage = float("nan")
-    if index is not None:  # how well the body explains the scan (unmatched count as 5 cm)
+    if index is not None and measure:  # how well the body explains the scan (unmatched: 5 cm)
         cand = np.flatnonzero(mask & sub)
         corr = index.closest_compatible(
             X[cand],
@@ -987,5 +1004,5 @@ def fit_body_prior(
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
         marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage, marker_weights=final_w,
-        hand_lengths=hands,
+        hand_lengths=hands, last_step_m=last_step,
     )  # fmt: skip
