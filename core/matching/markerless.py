@@ -233,14 +233,15 @@ MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
 ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR
 #: Gauss-Newton iterations of the soft-marker round's body prior from the landmarks' alignment
 #: and rest pose (the default 12 stopped it moving 2-3 mm per iteration, mean over the body;
-#: at 24, 0.3 mm). ``bench.realworld`` (stop 35), correspondence mean 12 -> 24: varied 40
-#: 8.21 -> 7.89 mm, booth 40 12.46 -> 12.00, palms 20 10.40 -> 9.77, wide 24 8.44 -> 8.57,
-#: heavy 20 14.79 -> 14.93; about 0.35 s CPU more per fit (twice that with a retry).
+#: at 24, 0.3 mm). ``bench.realworld`` (stop 35), correspondence mean 12 -> 24 (the retry's
+#: at 12): varied 40 8.21 -> 7.93 mm, booth 40 12.46 -> 12.03, palms 20 10.40 -> 10.08, wide
+#: 24 8.44 -> 8.61, heavy 20 14.79 -> 14.83; about 0.35 s CPU more per fit.
 ROUND_ITERATIONS = 24
 #: Iterations of the round's second body prior, from the previous fit (it starts converged:
 #: 24 iterations gave the same five sets to the last digit).
 RESTART_ITERATIONS = 12
-#: Iterations of the body prior of the round's quality retry (:data:`MARKERLESS_RETRIES`).
+#: Iterations of the body prior of the round's quality retry (:data:`MARKERLESS_RETRIES`): at 24
+#: palms 20 read 9.77 mm and booth 12.00, but the retry path took 1.1 s CPU more.
 RETRY_ITERATIONS = 12
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
