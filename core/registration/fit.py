@@ -768,10 +768,12 @@ def final_report(
         if state.level is not full:
             A = (ops.hierarchy.upsample @ A.reshape(state.level.n, 12)).reshape(-1, 3, 4)
     X = frame.to_world(apply_affines(A, full.V))
-    # final correspondences, for the data weights and the no-data fraction of the result
+    # final correspondences, for the data weights and the no-data fraction of the result: only
+    # the matched points count, not their projected targets (the nearest-point shortcut)
     final = index.closest_compatible(
-        X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg
-    )
+        X, vertex_normals(X, F_full), max_distance=max_distance, max_angle_deg=max_angle_deg,
+        project=False,
+    )  # fmt: skip
     weights_full = final.weights * full.data_mask
     report.no_data_fraction = float(np.mean(~(final.weights > 0)))
     report.template_region_fraction = float(np.mean(~full.data_mask))

@@ -891,7 +891,7 @@ def fit_body_prior(
         nu, K = len(uniq), k + 3 * B
         # (u, 3, k + 3B), each row's is J_u[inv]: shape then pose columns, filled in place
         J_u = np.empty((nu, 3, K))
-        np.einsum("rab,rbk->rak", Rb, U[uniq], out=J_u[:, :, :k])
+        np.matmul(Rb, U[uniq], out=J_u[:, :, :k])
         art.pose_jacobian(aux, uniq, out=J_u[:, :, k:])
         nd = len(rows)
         inv_d, inv_m = inv[:nd], inv[nd:]

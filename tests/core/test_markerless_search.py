@@ -658,19 +658,24 @@ def test_the_soft_marker_round_keeps_a_heavy_torsos_skin_from_sliding_down(tmp_p
     assert off < off_free - 3.0, (off, off_free)  # measured 37.9 / 42.9
 
 
-def test_the_soft_marker_rounds_body_prior_is_converged(tmp_path):
-    """raw-0: the round's body prior from the landmarks' alignment and rest pose stopped after
-    12 iterations still moving the body 2.6 mm per iteration (mean over its vertices); with
-    :data:`core.matching.markerless.ROUND_ITERATIONS` it stops settled, and the report says how
-    far its last iteration moved it."""
+def test_the_report_says_how_far_the_rounds_body_prior_moved_last(tmp_path, monkeypatch):
+    """raw-0: the round's body prior from the landmarks' alignment and rest pose stops after
+    :data:`core.matching.markerless.ROUND_ITERATIONS` (12) still moving the body 2.6 mm per
+    iteration (mean over its vertices); the report says so, and 24 iterations settle it (0.24
+    mm: more accurate on ``bench.realworld``, kept off for the time it costs)."""
+    import core.matching.markerless as ml
     from core.io import load_scan
-    from core.matching.markerless import fit_markerless
     from core.synth.scanner_outputs import make_case
 
-    scan, _ = load_scan(make_case(0, "raw").write(tmp_path / "raw.ply"))
-    res = fit_markerless(scan)
-    assert res.body_prior is not None
-    step = res.body_prior.last_step_m * 1000
-    assert step < 1.0, step  # measured 0.24 mm (2.61 with 12 iterations)
-    note = next(n for n in res.report.notes if n.startswith("markerless refinement:"))
-    assert f"body prior moved the body {step:.2f} mm (mean) in its last iteration" in note, note
+    case = make_case(0, "raw")
+    steps = []
+    for iterations in (ml.ROUND_ITERATIONS, 24):
+        monkeypatch.setattr(ml, "ROUND_ITERATIONS", iterations)
+        scan, _ = load_scan(case.write(tmp_path / f"raw-{iterations}.ply"))
+        res = ml.fit_markerless(scan)
+        assert res.body_prior is not None
+        step = res.body_prior.last_step_m * 1000
+        note = next(n for n in res.report.notes if n.startswith("markerless refinement:"))
+        assert f"body prior moved the body {step:.2f} mm (mean) in its last iteration" in note
+        steps.append(step)
+    assert steps[1] < 1.0 < steps[0], steps  # measured 2.61 / 0.24 mm
