@@ -916,7 +916,9 @@ def fit(
         # a retry runs the body prior from the usual start only (not the restart's second one,
         # ~0.45 s CPU per attempt: a retry changes the weights or the arms' start)
         o["prior_restart"] = None
-        po = replace(PriorOptions.of(o.get("prior_options")), initial_pose=start)
+        po = PriorOptions.of(o.get("prior_options"))
+        opt = dict(opt)  # "iterations": the retry's body prior's own count, for any retry
+        po = replace(po, initial_pose=start, iterations=int(opt.pop("iterations", po.iterations)))
         o["prior_options"] = po
         if "arm_abduction" in opt:
             sides = "".join(x for x in "LR" if f"arm_{x}" in weak or f"hand_{x}" in weak)
@@ -926,11 +928,7 @@ def fit(
             o["prior_options"] = replace(po, initial_pose=pose)
         elif "part_weight" in opt:
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            o["prior_options"] = replace(
-                po,
-                bidirectional=bool(opt["bidirectional"]),
-                iterations=int(opt.get("iterations", po.iterations)),
-            )
+            o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
         else:
             o.update(opt)
         r = _run(scan, markers, callback, o)

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from core.geometry import row_norms
 from core.registration.correspondence import ScanIndex, other_foot_matches
 from core.registration.hand_length import HandLength, correct_hand_lengths
 from core.registration.initialization import Similarity, umeyama
@@ -834,8 +835,8 @@ def fit_body_prior(
     w = np.zeros(0)
     damping = 1e-3
     rms_d = float("nan")
-    last_step = float("nan")
     Xp, aux = art.pose(shaped(c), local)
+    Xp_before = Xp
     bone_M = _bone_metrics(art, V0, bone_prior)
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
@@ -970,13 +971,14 @@ def fit_body_prior(
         rest = shaped(c)
         Xp_before = Xp
         Xp, aux = art.pose(rest, local)
-        last_step = float(np.linalg.norm(Xp - Xp_before, axis=1).mean() * sim.s)
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
         # without markers, closest-point pairs bias the scale down: hold it (shape modes carry size)
         sim = umeyama(src, dst, np.r_[mw, w], scale=None if len(marker_vid) >= 3 else sim.s)
     rest = shaped(c)
     X = sim.apply(Xp)
+    # the last iteration's mean vertex step (scan frame; NaN without iterations)
+    last_step = float(row_norms(Xp - Xp_before).mean() * sim.s) if iterations else float("nan")
     res_m = np.linalg.norm(X[marker_vid] - marker_pos, axis=1)
     final_w = marker_weights(res_m, iterations, iterations, marker_scale_start, marker_scale, floor)
     rms_m = float(np.sqrt(np.mean(res_m**2))) if len(res_m) else float("nan")
