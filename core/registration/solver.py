@@ -60,11 +60,32 @@ class SolveStats:
     changed_fraction: float  # share of vertices whose data weight changed since the factorisation
 
 
-def factorize(M: sp.csc_matrix) -> spla.SuperLU:
-    """Sparse LU of the symmetric positive-definite M with diagonal pivoting (no fill blow-up)."""
-    return spla.splu(
-        M, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True, "DiagPivotThresh": 0.0}
-    )
+class Factorization:
+    """Sparse LU of a symmetric positive-definite M (m, m) with diagonal pivoting, its unknowns
+    taken in a given fill-reducing ``order`` (m,) (SuperLU's own minimum-degree ordering of M
+    when None); :meth:`solve` answers in M's own order."""
+
+    def __init__(self, M: sp.spmatrix, order: np.ndarray | None = None) -> None:
+        opts = {"SymmetricMode": True, "DiagPivotThresh": 0.0}
+        self.order = order
+        if order is None:
+            self.lu = spla.splu(sp.csc_matrix(M), permc_spec="MMD_AT_PLUS_A", options=opts)
+        else:
+            Mp = sp.csr_matrix(M)[order][:, order].tocsc()
+            self.lu = spla.splu(Mp, permc_spec="NATURAL", options=opts)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """M⁻¹ b for b (m,) or (m, r)."""
+        if self.order is None:
+            return self.lu.solve(b)
+        x = np.empty_like(b, dtype=np.float64)
+        x[self.order] = self.lu.solve(np.ascontiguousarray(b[self.order]))
+        return x
+
+
+def factorize(M: sp.spmatrix, order: np.ndarray | None = None) -> Factorization:
+    """:class:`Factorization` of the symmetric positive-definite M (no fill blow-up)."""
+    return Factorization(M, order)
 
 
 class AffineSolver:
@@ -81,7 +102,7 @@ class AffineSolver:
     def __init__(self, level: ResolutionLevel, *, refactor_fraction: float = 0.03) -> None:
         self.level = level
         self.refactor_fraction = refactor_fraction
-        self._lu: spla.SuperLU | None = None
+        self._lu: Factorization | None = None
         self._w: np.ndarray | None = None  # per-vertex data weights of the factorisation
         self._key: tuple[float, float, float] | None = None
 
@@ -91,7 +112,7 @@ class AffineSolver:
         self._w = None
         self._key = None
 
-    def _matrix(self, t: SystemTerms, w: np.ndarray) -> tuple[sp.csc_matrix, float]:
+    def _matrix(self, t: SystemTerms, w: np.ndarray) -> tuple[sp.csr_matrix, float]:
         lv = self.level
         M = t.beta * smoothness_term(lv)
         idx = np.flatnonzero(w > 0)
@@ -100,7 +121,7 @@ class AffineSolver:
         if t.gamma > 0 and len(t.marker_idx):
             M = M + t.gamma * lv.gram(t.marker_idx, t.marker_weights)  # M_m of marker_term
         eps = REGULARIZATION * max(float(M.diagonal().mean()), 1e-12)
-        return (M + eps * sp.identity(4 * lv.n)).tocsc(), eps
+        return (M + eps * sp.identity(4 * lv.n)).tocsr(), eps
 
     def solve(
         self, t: SystemTerms, x0: np.ndarray, x_reg: np.ndarray
@@ -119,7 +140,7 @@ class AffineSolver:
         factorized = False
         if self._lu is None or changed > self.refactor_fraction:
             M, self._eps = self._matrix(t, w_new)
-            self._lu = factorize(M)
+            self._lu = factorize(M, lv.fill_reducing_order)
             self._w, self._key = w_new, key
             factorized = True
         w = self._w

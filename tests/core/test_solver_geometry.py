@@ -120,3 +120,29 @@ def test_mesh_distance_equals_brute_force_near_the_surface():
     assert over.max() < 1e-4
     # with more candidate vertices it is exact here
     assert np.allclose(MeshDistance(V, F, k=16).distances(P), brute, atol=1e-12)
+
+
+def test_fill_reducing_order_of_the_template_solves_the_same_system_with_less_fill():
+    from core.registration.fit import template_operators
+    from core.registration.solver import factorize
+
+    level = template_operators().full
+    order = level.fill_reducing_order
+    n = level.n
+    assert sorted(order.tolist()) == list(range(4 * n))  # a permutation of the unknowns
+    blocks = order.reshape(n, 4)
+    assert (blocks - blocks[:, :1] == np.arange(4)).all() and (blocks[:, 0] % 4 == 0).all()
+    rng = np.random.default_rng(0)
+    idx = np.flatnonzero(rng.random(n) < 0.8)
+    w = np.zeros(n)
+    w[idx] = rng.uniform(0.1, 1.0, len(idx))
+    terms = SystemTerms(1.0, 1.0, 0.0, idx, w[idx], np.zeros((len(idx), 3)), np.zeros(0, int),
+                        np.zeros((0, 3)))  # fmt: skip
+    M, _ = AffineSolver(level)._matrix(terms, w)
+    ordered, own = factorize(M, order), factorize(M)
+    # measured: 8.2 M factor entries against SuperLU's own ordering's 9.0 M (0.31 vs 0.48 s)
+    assert ordered.lu.L.nnz + ordered.lu.U.nnz < own.lu.L.nnz + own.lu.U.nnz
+    b = rng.normal(size=(4 * n, 3))
+    x = ordered.solve(b)
+    np.testing.assert_allclose(x, own.solve(b), rtol=0, atol=1e-9 * np.abs(x).max())
+    assert np.abs(M @ x - b).max() < 1e-9 * np.abs(b).max() * np.abs(M).max()
