@@ -232,13 +232,13 @@ MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
 #: (:data:`~core.registration.shape_prior.CLAVICLE_PRIOR`).
 ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR
 #: Gauss-Newton iterations of the soft-marker round's body prior from the landmarks' alignment
-#: and rest pose. At 12 it stops still moving the body 2-3 mm per iteration (mean over the
-#: vertices; the report gives the figure); at 24 0.2-0.3 mm and ``bench.realworld`` (stop 35)
-#: read correspondence means varied 40 8.21 -> 7.93 mm, booth 40 12.46 -> 12.03, palms 20 10.40
-#: -> 10.08, wide 24 8.44 -> 8.61, heavy 20 14.79 -> 14.83, but the retry path took ~0.35 s CPU
-#: more, past ``test_markerless_speed``'s bound on CI (46.1x the reference, bound 45): kept at
-#: 12 until the fit is faster.
-ROUND_ITERATIONS = 12
+#: and rest pose. At 12 it stopped still moving the body 2-3 mm per iteration (mean over the
+#: vertices; the report gives the figure), at 24 0.2-0.3 mm; ``bench.realworld`` (stop 35, 12 ->
+#: 24) read correspondence means varied 40 8.21 -> 7.93 mm, booth 40 12.46 -> 12.03, palms 20
+#: 10.40 -> 10.08, wide 24 8.44 -> 8.61, heavy 20 14.79 -> 14.83, twins 4.83 -> 4.66 (worst
+#: 7.3 -> 5.9). It costs ~0.35 s CPU a fit, paid for by the refinement's factorisation
+#: (``ResolutionLevel.fill_reducing_order``, ~0.25 s CPU a factorisation).
+ROUND_ITERATIONS = 24
 #: Iterations of the round's second body prior, from the previous fit (it starts converged:
 #: 24 iterations gave the same five sets to the last digit).
 RESTART_ITERATIONS = 12

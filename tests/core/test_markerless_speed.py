@@ -178,19 +178,28 @@ def test_markerless_fit_of_a_150k_scan_that_retries_takes_under_8_s_cpu(tmp_path
     case = make_realworld(35, "raw")
     assert 150_000 < len(case.V) < 200_000
     path = case.write(tmp_path / "raw-35.ply")
-    cpus = []
+    runs = []  # (ratio, fit CPU s, reference CPU s)
+    ref_before = reference_cpu()
     for _ in range(2):  # best of two: one run's CPU time varied 10.6-12.7 s on an idle machine
         calls.clear()
         t = time.process_time()
         _, res, _ = run_fit(path, None, quiet=True)
-        cpus.append(time.process_time() - t)
+        cpu = time.process_time() - t
         assert len(calls) >= 2  # the retry ran and was assessed
         assert any(n.startswith("quality retries") for n in res.report.notes)
-    cpu = min(cpus)
-    ref = reference_cpu()
-    print(f"retry-path fit {cpu:.2f} s CPU, reference workload {ref:.3f} s: {cpu / ref:.1f}x")
-    assert cpu / ref < FIT_OVER_REFERENCE, (
-        f"markerless fit of a 150 k-vertex scan took {cpu:.1f} s CPU, {cpu / ref:.1f}x the "
+        # the machine's speed drifts over minutes (one session's reference read 0.19-0.28 s
+        # around the same fit): each run is set against the reference just before and after it
+        ref_after = reference_cpu()
+        ref = (ref_before + ref_after) / 2
+        runs.append((cpu / ref, cpu, ref))
+        ref_before = ref_after
+    ratio, cpu, ref = min(runs)
+    print(
+        f"retry-path fit {cpu:.2f} s CPU, reference workload {ref:.3f} s: {ratio:.1f}x "
+        f"(runs: {', '.join(f'{r[0]:.1f}x' for r in runs)})"
+    )
+    assert ratio < FIT_OVER_REFERENCE, (
+        f"markerless fit of a 150 k-vertex scan took {cpu:.1f} s CPU, {ratio:.1f}x the "
         f"reference workload's {ref:.2f} s (bound {FIT_OVER_REFERENCE}x; target 8 s)"
     )
 
