@@ -430,14 +430,23 @@ def _scan_to_template(
     n_data = len(cand)
     allc = cand if explained is None else np.r_[cand, explained]
     tree = cKDTree(X[allc])
-    d, j = tree.query(pts[sel], k=4, distance_upper_bound=max_distance)
-    valid = np.isfinite(d)
-    jj = np.where(valid, j, 0)
-    dots = np.einsum("skc,sc->sk", N[allc][jj], index.normals[sel])
-    ok = valid & (dots > min_cos)
-    first = np.argmax(ok, axis=1)
-    hit = jj[np.arange(len(sel)), first]
-    has = ok.any(axis=1) & (hit < n_data)
+    Nc, Ns = N[allc], index.normals[sel]
+    # the nearest vertex settles most points (where it is compatible the 4-nearest rule picks it
+    # first; where it is out of range so are the rest): the 4-nearest query runs on the others
+    d1, j1 = tree.query(pts[sel], k=1, distance_upper_bound=max_distance)
+    valid1 = np.isfinite(d1)
+    hit = np.where(valid1, j1, 0)
+    has = valid1 & (np.einsum("sc,sc->s", Nc[hit], Ns) > min_cos)
+    redo = np.flatnonzero(valid1 & ~has)
+    if len(redo):
+        d, j = tree.query(pts[sel[redo]], k=min(4, len(allc)), distance_upper_bound=max_distance)
+        d, j = d.reshape(len(redo), -1), j.reshape(len(redo), -1)
+        valid = np.isfinite(d)
+        jj = np.where(valid, j, 0)
+        ok = valid & (np.einsum("skc,sc->sk", Nc[jj], Ns[redo]) > min_cos)
+        hit[redo] = jj[np.arange(len(redo)), np.argmax(ok, axis=1)]
+        has[redo] = ok.any(axis=1)
+    has &= hit < n_data
     v = allc[hit][has]
     p = sel[has]
     w = index.point_weight[p] * ~index.boundary[p]
