@@ -247,6 +247,22 @@ RESTART_ITERATIONS = 12
 #: path 1.1 s CPU more).
 RETRY_ITERATIONS = 12
 
+#: Scan → body pairs of the first shape-space fit (``fit_body_prior(scan_sample=,
+#: scan_pair_weight=)``): 12,000 sampled scan points of a third of the weight each, the same
+#: total weight as the 4,000 pairs of weight 1 before with a third of the sampling's variance
+#: (the sample is every k-th point of the file: a closed mesh's and a raw scan's of one body
+#: differ). ``bench.realworld``, the 8 varied twin pairs (stop 36): twins 4.68 -> 4.50 mm mean,
+#: correspondence 7.17 -> 7.20.
+FIRST_SCAN_SAMPLE = 12000
+FIRST_SCAN_PAIR_WEIGHT = 1 / 3
+#: Scan → body pairs in the soft-marker round's body prior, which had body → scan pairs and
+#: the landmarks only: 4,000 sampled scan points of weight 0.45 each (the same 8 pairs, on top
+#: of the first fit's: twins 4.50 -> 4.34 mm, worst 5.9 -> 5.6, correspondence 7.20 -> 7.24,
+#: p95 20.6 -> 19.8; 12,000 of 0.15: 4.28, 7.22, ~0.6 s CPU more; 12,000 of 1/3: 4.20 but
+#: correspondence 7.45).
+ROUND_SCAN_SAMPLE = 4000
+ROUND_SCAN_PAIR_WEIGHT = 0.45
+
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
 #: of a raw scan, raw-0 of ``core.synth.scanner_outputs``).
@@ -743,6 +759,8 @@ def fit_markerless(
             "k_schedule": K_SCHEDULE[-1:] if quick else K_SCHEDULE,
             "iterations": 8 if quick else 16,
             "bidirectional": True,
+            "scan_sample": FIRST_SCAN_SAMPLE,
+            "scan_pair_weight": FIRST_SCAN_PAIR_WEIGHT,
             "freeze_pose": 0 if quick else 3,
             "initial_pose": start.pose,
             "initial_coefficients": start.coefficients,
@@ -944,7 +962,8 @@ def fit_markerless(
                 "iterations": ROUND_ITERATIONS,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
-                "trunk_prior": TRUNK_PRIOR,
+                "trunk_prior": TRUNK_PRIOR, "bidirectional": True,
+                "scan_sample": ROUND_SCAN_SAMPLE, "scan_pair_weight": ROUND_SCAN_PAIR_WEIGHT,
             },
             **options,
         )  # fmt: skip

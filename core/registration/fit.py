@@ -928,7 +928,10 @@ def fit(
             o["prior_options"] = replace(po, initial_pose=pose)
         elif "part_weight" in opt:
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
+            # the scan -> body pairs at full weight (a caller's lighter ones: the retry's own)
+            o["prior_options"] = replace(
+                po, bidirectional=bool(opt["bidirectional"]), scan_pair_weight=1.0
+            )
         else:
             o.update(opt)
         r = _run(scan, markers, callback, o)
