@@ -134,3 +134,58 @@ def test_the_trunk_rows_are_the_spine_joints_offsets_along_the_trunk() -> None:
     G, _ = _limb_rows(tpl.V, U, rig, TRUNK_CHAINS)
     assert -1.0 < G[i, 0] < -0.85  # -0.92: one of its vertices also places the pelvis
     assert np.abs(np.delete(G[:, 0], i)).max() < 0.1  # the others only through that vertex
+
+
+def _four_nearest_pairs(index, X, N, cand, max_distance, n_sample, min_cos):
+    """The rule of ``_scan_to_template`` written plainly: each sampled scan point with the
+    first of its 4 nearest vertices of ``cand`` whose normal is compatible."""
+    pts = index.points
+    sel = np.arange(0, len(pts), max(1, len(pts) // n_sample))
+    d, j = cKDTree(X[cand]).query(pts[sel], k=4, distance_upper_bound=max_distance)
+    out = []
+    for s, (ds, js) in enumerate(zip(d, j, strict=True)):
+        for dk, jk in zip(ds, js, strict=True):
+            if np.isfinite(dk) and N[cand[jk]] @ index.normals[sel[s]] > min_cos:
+                out.append((cand[jk], sel[s]))
+                break
+    return out
+
+
+def test_scan_to_template_pairs_are_the_first_compatible_of_the_four_nearest() -> None:
+    tpl = load_template()
+    V, F = tpl.V, np.asarray(tpl.F, np.int64)
+    rng = np.random.default_rng(1)
+    n = len(V)
+    N = vertex_normals(V, F)
+    # the scan: the template moved by up to 2 cm, a third of its normals turned at random
+    P = V + rng.normal(scale=0.007, size=V.shape)
+    Ns = vertex_normals(P, F) * np.where(rng.random(n) < 0.33, -1.0, 1.0)[:, None]
+    scan = Scan(V=P, F=F, normals=Ns, confidence=np.ones(n), boundary=np.zeros(n, bool))
+    index = ScanIndex(scan)
+    cand = np.flatnonzero(rng.random(n) < 0.4)
+    v, pts, _, _ = _scan_to_template(index, V, N, cand, 0.01, 6000, min_cos=0.5)
+    want = _four_nearest_pairs(index, V, N, cand, 0.01, 6000, 0.5)
+    assert len(want) > 1000
+    np.testing.assert_array_equal(v, [a for a, _ in want])
+    np.testing.assert_array_equal(pts, P[[b for _, b in want]])
+
+
+def test_scan_pair_weight_scales_the_scan_to_body_pairs() -> None:
+    from bench.cases import make_case
+    from core.registration.fit import fit
+    from core.registration.schedule import Schedule
+
+    c = make_case(3, small=True)
+    index = ScanIndex(c.scan)
+
+    def body(**prior):  # the body prior alone, from the case's markers
+        opts = {"iterations": 6, **prior}
+        kw = {"schedule": Schedule(()), "index": index, "retry": False, "assess": False}
+        return fit(c.scan, c.markers, prior_options=opts, **kw).vertices
+
+    one_way = body()
+    # weightless scan rows change nothing but the order of the sums
+    np.testing.assert_allclose(body(bidirectional=True, scan_pair_weight=0.0), one_way, atol=1e-9)
+    full, third = body(bidirectional=True), body(bidirectional=True, scan_pair_weight=1 / 3)
+    moved = [float(np.abs(x - one_way).max()) for x in (full, third)]
+    assert moved[0] > moved[1] > 1e-3, moved  # measured 7.2 / 4.0 mm
