@@ -255,13 +255,12 @@ RETRY_ITERATIONS = 12
 #: correspondence 7.17 -> 7.20.
 FIRST_SCAN_SAMPLE = 12000
 FIRST_SCAN_PAIR_WEIGHT = 1 / 3
-#: Scan → body pairs in the soft-marker round's body prior, which had body → scan pairs and
-#: the landmarks only: 4,000 sampled scan points of weight 0.45 each (the same 8 pairs, on top
-#: of the first fit's: twins 4.50 -> 4.34 mm, worst 5.9 -> 5.6, correspondence 7.20 -> 7.24,
-#: p95 20.6 -> 19.8; 12,000 of 0.15: 4.28, 7.22, ~0.6 s CPU more; 12,000 of 1/3: 4.20 but
-#: correspondence 7.45).
-ROUND_SCAN_SAMPLE = 4000
-ROUND_SCAN_PAIR_WEIGHT = 0.45
+#: The soft-marker round's body prior has body → scan pairs and the landmarks only. Scan → body
+#: pairs there too (4,000 of weight 0.45, stop 36) brought the twins closer (varied 4.68 -> 4.36
+#: mm, heavy 8.61 -> 7.36) and booth 40 / wide 24 nearer the truth (12.03 -> 11.43, 8.61 ->
+#: 8.21 mm), but the round no longer settled (raw-0: 1.3 mm in its 24th iteration against 0.24)
+#: and a heavy belly's skin slid down again despite the trunk prior (closed_lowres-69: navel
+#: 40 -> 90 mm off): not kept.
 
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
@@ -962,8 +961,7 @@ def fit_markerless(
                 "iterations": ROUND_ITERATIONS,
                 "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
-                "trunk_prior": TRUNK_PRIOR, "bidirectional": True,
-                "scan_sample": ROUND_SCAN_SAMPLE, "scan_pair_weight": ROUND_SCAN_PAIR_WEIGHT,
+                "trunk_prior": TRUNK_PRIOR,
             },
             **options,
         )  # fmt: skip
