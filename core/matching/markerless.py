@@ -247,21 +247,6 @@ RESTART_ITERATIONS = 12
 #: path 1.1 s CPU more).
 RETRY_ITERATIONS = 12
 
-#: Scan → body pairs of the first shape-space fit (``fit_body_prior(scan_sample=,
-#: scan_pair_weight=)``): 12,000 sampled scan points of a third of the weight each, the same
-#: total weight as the 4,000 pairs of weight 1 before with a third of the sampling's variance
-#: (the sample is every k-th point of the file: a closed mesh's and a raw scan's of one body
-#: differ). ``bench.realworld``, the 8 varied twin pairs (stop 36): twins 4.68 -> 4.50 mm mean,
-#: correspondence 7.17 -> 7.20.
-FIRST_SCAN_SAMPLE = 12000
-FIRST_SCAN_PAIR_WEIGHT = 1 / 3
-#: The soft-marker round's body prior has body → scan pairs and the landmarks only. Scan → body
-#: pairs there too (4,000 of weight 0.45, stop 36) brought the twins closer (varied 4.68 -> 4.36
-#: mm, heavy 8.61 -> 7.36) and booth 40 / wide 24 nearer the truth (12.03 -> 11.43, 8.61 ->
-#: 8.21 mm), but the round no longer settled (raw-0: 1.3 mm in its 24th iteration against 0.24)
-#: and a heavy belly's skin slid down again despite the trunk prior (closed_lowres-69: navel
-#: 40 -> 90 mm off): not kept.
-
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
 #: of a raw scan, raw-0 of ``core.synth.scanner_outputs``).
@@ -758,8 +743,6 @@ def fit_markerless(
             "k_schedule": K_SCHEDULE[-1:] if quick else K_SCHEDULE,
             "iterations": 8 if quick else 16,
             "bidirectional": True,
-            "scan_sample": FIRST_SCAN_SAMPLE,
-            "scan_pair_weight": FIRST_SCAN_PAIR_WEIGHT,
             "freeze_pose": 0 if quick else 3,
             "initial_pose": start.pose,
             "initial_coefficients": start.coefficients,

@@ -928,10 +928,7 @@ def fit(
             o["prior_options"] = replace(po, initial_pose=pose)
         elif "part_weight" in opt:
             o["part_weights"] = {p: opt["part_weight"] for p in weak}
-            # the scan -> body pairs at full weight (a caller's lighter ones: the retry's own)
-            o["prior_options"] = replace(
-                po, bidirectional=bool(opt["bidirectional"]), scan_pair_weight=1.0
-            )
+            o["prior_options"] = replace(po, bidirectional=bool(opt["bidirectional"]))
         else:
             o.update(opt)
         r = _run(scan, markers, callback, o)

@@ -326,7 +326,6 @@ class PriorOptions:
     bidirectional: bool = False
     freeze_pose: int = 0
     scan_sample: int = 4000
-    scan_pair_weight: float = 1.0
     initial_pose: dict[str, np.ndarray] | None = None
     initial_coefficients: np.ndarray | None = None
     max_angle_deg: float = 60.0
@@ -706,7 +705,6 @@ def fit_body_prior(
     bidirectional: bool = False,
     freeze_pose: int = 0,
     scan_sample: int = 4000,
-    scan_pair_weight: float = 1.0,
     initial_pose: dict[str, np.ndarray] | None = None,
     initial_coefficients: np.ndarray | None = None,
     max_angle_deg: float = 60.0,
@@ -747,8 +745,7 @@ def fit_body_prior(
     k_schedule : number of active shape components per iteration (the paper's k' schedule:
         few first, more later); the last entry holds for the remaining iterations.
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
-        vertex (without markers, one-way pairs let the body shrink or slide off the scan), each
-        pair weighted ``scan_pair_weight`` (relative to a body → scan pair's weight).
+        vertex (without markers, one-way pairs let the body shrink or slide off the scan).
     freeze_pose : iterations before the bone rotations may move (coarse alignment first).
     initial_pose : bone name (of :data:`POSE_BONES`) -> (3, 3) local rotation to start from
         (a markerless search's arm-pose hypothesis); others start at the identity.
@@ -885,7 +882,7 @@ def fit_body_prior(
                 )
                 rows = np.r_[rows, s_rows]
                 P = np.vstack([P, s_P])
-                w = np.r_[w, s_w * scan_pair_weight]
+                w = np.r_[w, s_w]
                 Np = np.vstack([Np, s_N @ sim.R])
             if vertex_weight is not None:
                 w = w * vertex_weight[rows]

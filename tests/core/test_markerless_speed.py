@@ -44,7 +44,6 @@ def _suspect_result(scan, weak: str):
 def test_retries_follow_the_given_list_and_share_one_scan_index(small, monkeypatch):
     import core.registration.fit as fitmod
     from core.matching.markerless import MARKERLESS_RETRIES
-    from core.registration.shape_prior import PriorOptions
 
     calls: list[dict] = []
 
@@ -60,14 +59,11 @@ def test_retries_follow_the_given_list_and_share_one_scan_index(small, monkeypat
     assert "arms started 10° out" in res.report.notes[-1]
 
     calls.clear()
-    light = {"bidirectional": True, "scan_pair_weight": 0.45}  # as the markerless round's
-    res = fitmod.fit(small.scan, small.markers, retries=MARKERLESS_RETRIES, prior_options=light)
+    res = fitmod.fit(small.scan, small.markers, retries=MARKERLESS_RETRIES)
     assert [name for name, _ in MARKERLESS_RETRIES] == ["lost parts weighted x4, scan→body pairs"]
     assert len(calls) == 2
     assert calls[1]["part_weights"] == {"hand_L": 4.0}
     assert calls[1]["prior_options"].bidirectional
-    assert PriorOptions.of(calls[0]["prior_options"]).scan_pair_weight == 0.45
-    assert calls[1]["prior_options"].scan_pair_weight == 1.0  # the retry's pairs at full weight
     assert "arms started" not in res.report.notes[-1]
 
     calls.clear()
@@ -115,10 +111,6 @@ def test_markerless_assesses_and_retries_only_its_last_round(monkeypatch):
     assert [kw["retry"] for kw in seen] == [False] * (len(seen) - 1) + [True]
     assert all(kw["retries"] == ml.MARKERLESS_RETRIES for kw in seen[-2:])
     assert len({id(kw["index"]) for kw in seen}) == 1  # no hair here: one scan, one KD-tree
-    # scan -> body pairs: the first fit's 12,000 light ones; the round has none (its retry's)
-    first, last = seen[0]["prior_options"], seen[-1]["prior_options"]
-    assert (first["scan_sample"], first["scan_pair_weight"]) == (12000, 1 / 3)
-    assert first["bidirectional"] and not last.get("bidirectional", False)
     assert res.report.quality is not None and np.isfinite(res.report.scan_to_fit_p95_m)
     # without soft-marker rounds the one fit is assessed and may use every retry
     seen.clear()
