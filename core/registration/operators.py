@@ -78,12 +78,9 @@ class ResolutionLevel:
         the whole matrix on every factorisation (``core.registration.solver.factorize``)."""
         n = self.n
         i, j = self.edges[:, 0], self.edges[:, 1]
-        G = sp.coo_matrix(
-            (np.ones(2 * len(i) + n), (np.r_[i, j, np.arange(n)], np.r_[j, i, np.arange(n)])),
-            shape=(n, n),
-        ).tocsc()
+        G = sp.coo_matrix((np.ones(2 * len(i)), (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsc()
         G.data[:] = 1.0
-        G = G + sp.identity(n, format="csc") * 10.0  # diagonally dominant: no pivoting
+        G = G + sp.identity(n, format="csc") * 10.0  # the diagonal, dominant: no pivoting
         lu = spla.splu(
             G, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True, "DiagPivotThresh": 0.0}
         )
