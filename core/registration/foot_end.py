@@ -1,0 +1,103 @@
+"""Where the scanned feet end: the toe tips' soft markers of the markerless round.
+
+The template's toes take no data on coarsely sampled scans (``core.registration.fit``:
+:data:`~core.registration.fit.TOE_DATA_MAX_SPACING_M`: booth meshes fuse and round them off),
+so there the foot's length comes from the shape coefficients alone, and on bodies off the
+prior's space that is often wrong: on the closed booth meshes of ``bench.realworld`` (seeds
+16 and 28, BMI 36 and 39) the fitted toe tips stood 13-19 mm past the truth's after the
+soft-marker round and 17-26 mm after the refinement, 16-29 mm past the end of the scanned foot,
+while the raw scans of the same bodies (toes with data) put them within 5 mm. The scan says
+where the foot ends: the round's toe-tip markers go there (:func:`scanned_foot_ends`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.registration.correspondence import ScanIndex
+from core.template import Template, load_template
+from core.threads import KD_WORKERS
+
+#: the scan's foot end is the n-th furthest foot point along the foot's axis (not a lone outlier)
+END_RANK = 5
+#: fewest scan points a measured foot needs
+MIN_FOOT_POINTS = 30
+#: scan points further than this (metres) from the fitted body are not the foot's
+FOOT_POINT_GAP_M = 0.02
+
+
+@dataclass
+class FootEnd:
+    """Where a scanned foot ends: ``reach_m`` past the fitted heel (Calcaneus_posterior) along
+    the foot's horizontal axis (metres), and that unit axis (``axis``, (3,), heel to toe tip of
+    the fitted body, y = 0)."""
+
+    reach_m: float
+    axis: np.ndarray
+
+
+def _heel_axis(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np.ndarray, float]:
+    """Heel (3,), unit horizontal foot axis (3,) to the toe tip and the foot's length along
+    it (metres) of the body ``X`` (13380, 3), +Y up."""
+    L = tpl.landmarks
+    heel = X[L[f"Calcaneus_posterior_{side}"]]
+    a = X[L[f"Toe_tip_{side}"]] - heel
+    a = np.array([a[0], 0.0, a[2]])
+    length = float(np.linalg.norm(a))
+    return heel, a / max(length, 1e-9), length
+
+
+def scanned_foot_end(
+    index: ScanIndex, X: np.ndarray, side: str, template: Template | None = None
+) -> FootEnd | None:
+    """Where the scanned foot ``side`` of the body ``X`` (13380, 3) ends along its axis: the
+    :data:`END_RANK`-th furthest of the scan points whose nearest vertex of ``X`` lies on that
+    foot or shin within :data:`FOOT_POINT_GAP_M`; None with fewer than :data:`MIN_FOOT_POINTS`
+    of them."""
+    tpl = template or load_template()
+    heel, a, length = _heel_axis(X, side, tpl)
+    if length <= 0:
+        return None
+    centre = heel + 0.5 * length * a
+    ids = np.asarray(
+        index.tree.query_ball_point(centre, 0.65 * length + FOOT_POINT_GAP_M, workers=KD_WORKERS),
+        dtype=np.int64,
+    )
+    if len(ids) < MIN_FOOT_POINTS:
+        return None
+    P = index.points[ids]
+    d, nearest = cKDTree(X).query(P, distance_upper_bound=FOOT_POINT_GAP_M, workers=KD_WORKERS)
+    near = np.isfinite(d)
+    own = tpl.part_mask(f"foot_{side}") | tpl.part_mask(f"shin_{side}")
+    keep = near & own[np.where(near, nearest, 0)]
+    if keep.sum() < MIN_FOOT_POINTS:
+        return None
+    t = np.sort((P[keep] - heel) @ a)
+    return FootEnd(float(t[-END_RANK]), a)
+
+
+def scanned_foot_ends(
+    index: ScanIndex, X: np.ndarray, template: Template | None = None
+) -> dict[str, FootEnd]:
+    """Side -> :func:`scanned_foot_end` of both feet of the body ``X`` (13380, 3), where
+    measurable."""
+    tpl = template or load_template()
+    out = {}
+    for side in "LR":
+        end = scanned_foot_end(index, X, side, tpl)
+        if end is not None:
+            out[side] = end
+    return out
+
+
+def toe_tip_marker(X: np.ndarray, side: str, end: FootEnd, allowance_m: float) -> np.ndarray:
+    """(3,) soft marker of the toe tip ``side``: the fitted body ``X``'s toe tip moved along the
+    foot's axis to ``allowance_m`` past the scanned foot's end (the other two coordinates
+    stay the fit's: the scan's furthest point need not be the landmark's toe)."""
+    tpl = load_template()
+    length = _heel_axis(X, side, tpl)[2]
+    tip = X[tpl.landmarks[f"Toe_tip_{side}"]]
+    return tip + (end.reach_m + allowance_m - length) * end.axis
