@@ -943,11 +943,11 @@ def fit_markerless(
         res = fit(
             hair.scan, marks, schedule=sched if last else Schedule(()),
             callback=callback if last else None, retry=last, index=round_index, assess=last,
-            retries=MARKERLESS_RETRIES, prior_restart=restart,
+            retries=MARKERLESS_RETRIES, prior_restart=restart, soft_markers=True,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
                 "iterations": ROUND_ITERATIONS,
-                "hand_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
+                "hand_length": True, "foot_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR,
             },

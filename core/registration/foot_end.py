@@ -27,6 +27,30 @@ END_RANK = 5
 MIN_FOOT_POINTS = 30
 #: scan points further than this (metres) from the fitted body are not the foot's
 FOOT_POINT_GAP_M = 0.02
+#: corrections of less than this (metres at the toe tip) are not made (:func:`correct_foot_lengths`)
+MIN_FOOT_CORRECTION_M = 0.006
+#: a foot is stretched or shortened only within this share of its length (beyond it the scan's
+#: foot end is not this foot's: a foot on the other one, lost in a hole)
+FOOT_CORRECTION_LIMITS = (-0.12, 0.08)
+#: share of the foot's length from the heel where its stretch begins: the ankle's ring (the foot's
+#: border with the shin) reaches 0.42 of the template's foot, and stays put
+FOREFOOT_FROM = 0.45
+
+
+@dataclass
+class FootLength:
+    """One foot's length correction: ``side`` ``"L"``/``"R"``; ``fit_m``, ``target_m`` heel →
+    toe tip along the foot before and after (metres)."""
+
+    side: str
+    fit_m: float
+    target_m: float
+
+    def note(self) -> str:
+        return (
+            f"foot_{self.side} {self.fit_m * 1000:.0f} -> {self.target_m * 1000:.0f} mm "
+            "(to the scanned foot's end)"
+        )
 
 
 @dataclass
@@ -91,6 +115,35 @@ def scanned_foot_ends(
         if end is not None:
             out[side] = end
     return out
+
+
+def correct_foot_lengths(
+    index: ScanIndex, X: np.ndarray, allowance_m: float, template: Template | None = None
+) -> tuple[np.ndarray, list[FootLength]]:
+    """Both feet of the posed body ``X`` (13380, 3), metres, set to their scanned length: the
+    forefoot (from :data:`FOREFOOT_FROM` of the foot's length on) stretched along the foot's
+    axis so that the toe tip lies ``allowance_m`` past the scanned foot's end
+    (:func:`scanned_foot_end`; the toes take no data on coarse scans and the refinement keeps
+    what the body prior gave). Corrections under :data:`MIN_FOOT_CORRECTION_M` or outside
+    :data:`FOOT_CORRECTION_LIMITS` are not made. Returns the new body and the corrections."""
+    tpl = template or load_template()
+    out = X.copy()
+    made: list[FootLength] = []
+    for side in "LR":
+        end = scanned_foot_end(index, X, side, tpl)
+        if end is None:
+            continue
+        heel, a, length = _heel_axis(X, side, tpl)
+        change = end.reach_m + allowance_m - length
+        lo, hi = FOOT_CORRECTION_LIMITS
+        if abs(change) < MIN_FOOT_CORRECTION_M or not lo * length <= change <= hi * length:
+            continue
+        ids = np.flatnonzero(tpl.part_mask(f"foot_{side}"))
+        t = (X[ids] - heel) @ a / length
+        ramp = np.clip((t - FOREFOOT_FROM) / (1.0 - FOREFOOT_FROM), 0.0, None)
+        out[ids] += np.outer(change * ramp, a)
+        made.append(FootLength(side, length, length + change))
+    return out, made
 
 
 def toe_tip_marker(X: np.ndarray, side: str, end: FootEnd, allowance_m: float) -> np.ndarray:

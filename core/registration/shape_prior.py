@@ -35,7 +35,8 @@ from scipy.spatial.transform import Rotation
 
 from core.geometry import row_norms
 from core.registration.correspondence import ScanIndex, other_foot_matches
-from core.registration.hand_length import HandLength, correct_hand_lengths
+from core.registration.foot_end import FootLength, correct_foot_lengths
+from core.registration.hand_length import HandLength, correct_hand_lengths, tip_allowance
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
 from core.rig import Rig, bone_transforms, finger_rotations, joint_positions, load_rig
@@ -340,6 +341,7 @@ class PriorOptions:
     fists: str = ""
     floor_y: float | None = None
     hand_length: bool = False
+    foot_length: bool = False
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -382,6 +384,7 @@ class PriorFit:
     coverage: float  # share of (sampled, data-eligible) vertices matched within 1.5 cm (or NaN)
     marker_weights: np.ndarray  # (km,) final robust weight of each marker, fraction of full
     hand_lengths: list[HandLength] = field(default_factory=list)  # hands set to their length
+    foot_lengths: list[FootLength] = field(default_factory=list)  # feet set to their length
     #: mean vertex displacement of the last iteration (metres, scan frame): how far from
     #: converged the fit stopped
     last_step_m: float = float("nan")
@@ -718,6 +721,7 @@ def fit_body_prior(
     fists: str = "",
     floor_y: float | None = None,
     hand_length: bool = False,
+    foot_length: bool = False,
     measure: bool = True,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
@@ -796,6 +800,9 @@ def fit_body_prior(
         where it is clear of the body, into ANSUR II's band of the stature where it is not
         (:func:`core.registration.hand_length.correct_hand_lengths`; the fingers take no data,
         so the coefficients alone gave the length: 4-19 % long on closed booth meshes).
+    foot_length : with a scan, set each foot's length after the fit: its toe tip just past the
+        scanned foot's end (:func:`core.registration.foot_end.correct_foot_lengths`; on coarse
+        scans the toes take no data).
     measure : with a scan, measure the result's ``data_cost_m`` and ``coverage`` (one more
         correspondence query; the markerless search scores its starts by them), else NaN.
     """
@@ -1010,10 +1017,13 @@ def fit_body_prior(
         top = load_template().landmarks["Vertex"]
         stature = (rest[top, 1] - rest[:, 1].min()) * sim.s
         X, hands = correct_hand_lengths(index, X, stature, fists=fists)
+    feet: list[FootLength] = []
+    if index is not None and foot_length:
+        X, feet = correct_foot_lengths(index, X, tip_allowance(index))
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
         similarity=sim, iterations=iterations, rms_marker_m=rms_m, rms_data_m=rms_d,
         marker_residuals_m=res_m, data_cost_m=cost, coverage=coverage, marker_weights=final_w,
-        hand_lengths=hands, last_step_m=last_step,
+        hand_lengths=hands, foot_lengths=feet, last_step_m=last_step,
     )  # fmt: skip
