@@ -52,39 +52,6 @@ class Correspondences:
     point_ids: np.ndarray
 
 
-#: :func:`sole_cap`: the flat cut is looked for among the points facing straight down (normal
-#: within ~14° of -Y) up to SOLE_CAP_SEARCH_M above the scan's lowest points; it is there when
-#: SOLE_CAP_FLAT_SHARE of them lie within SOLE_CAP_FLAT_M of their median height (closed booth
-#: meshes of ``core.synth.scanner_outputs``: 77-93 %; a dense cloud's real soles 39 %)
-SOLE_CAP_SEARCH_M, SOLE_CAP_FLAT_M, SOLE_CAP_FLAT_SHARE = 0.010, 0.001, 0.6
-#: the cap: points facing down (normal within ~25° of -Y) up to this (metres) above the cut
-SOLE_CAP_BAND_M = 0.003
-#: fewest points facing straight down that make a cap
-SOLE_CAP_MIN_POINTS = 20
-
-
-def sole_cap(P: np.ndarray, N: np.ndarray) -> np.ndarray:
-    """(n,) bool: the points of ``P`` (n, 3; metres, +Y up) with unit normals ``N`` (n, 3) that
-    make a flat cap under the soles — scanner software that cut the floor contact off a closed
-    mesh closes the feet with a plane there (``core.synth.scanner_outputs.closed_mesh``: 3-8 mm
-    up). The cap is hole fill, not skin: fitted as data, it held the soles up at the cut (the
-    closed meshes' fitted feet 2 mm higher than their raw twins', whose cut-off soles are holes).
-    None where the lowest points facing down are not one plane (a raw scan's soles are holes)."""
-    P, N = np.asarray(P), np.asarray(N)
-    out = np.zeros(len(P), dtype=bool)
-    if len(P) < SOLE_CAP_MIN_POINTS:
-        return out
-    y = P[:, 1]
-    lo = float(np.percentile(y, 0.05))
-    down = (y < lo + SOLE_CAP_SEARCH_M) & (N[:, 1] < -0.97)
-    if down.sum() < SOLE_CAP_MIN_POINTS:
-        return out
-    cut = float(np.median(y[down]))
-    if np.mean(np.abs(y[down] - cut) < SOLE_CAP_FLAT_M) < SOLE_CAP_FLAT_SHARE:
-        return out
-    return (y < cut + SOLE_CAP_BAND_M) & (N[:, 1] < -0.9)
-
-
 class ScanIndex:
     """A scan with a KD-tree, ready for repeated correspondence queries."""
 
@@ -96,11 +63,6 @@ class ScanIndex:
         self.point_weight = confidence_weight(scan.confidence, confidence_full_at)
         self.boundary = np.asarray(scan.boundary, dtype=bool)
         self.tree = cKDTree(self.points, leafsize=KD_LEAFSIZE)
-        #: (n,) bool, a flat cap under the soles (:func:`sole_cap`): hole fill, no data
-        self.sole_cap = sole_cap(self.points, self.normals)
-        if self.sole_cap.any():
-            self.point_weight = np.where(self.sole_cap, 0.0, self.point_weight)
-            self.boundary = self.boundary | self.sole_cap
 
     @cached_property
     def spacing_m(self) -> float:

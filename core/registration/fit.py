@@ -214,15 +214,6 @@ def toes_take_data(index: ScanIndex) -> bool:
     return index.spacing_m < TOE_DATA_MAX_SPACING_M
 
 
-#: On a scan sampled as coarsely as :data:`TOE_DATA_MAX_SPACING_M` or coarser the refinement
-#: leaves the hands to the body prior (they take no data in it): such scans fuse the fingers
-#: into mittens and round them off (booth meshes of 10-20 k vertices), and fitting the template's
-#: hand to that blob moved it away from the body's. ``bench.realworld``'s closed-vs-raw twins
-#: (8 bodies, stop 37): closed hands 7.3/6.9 mm from the truth after the body prior, 8.4/7.8
-#: after the refinement with their data, 7.6/7.1 without; twins 4.54 -> 4.38 mm; the raw twins'
-#: hands (with data) 5.1/5.4 -> 4.9/5.2. Fits with the body prior only (every markerless fit).
-
-
 def fit_data_mask(ops: TemplateOperators, fists: str = "", toes: bool = False) -> np.ndarray:
     """(13380,) bool: the vertices that take data in a fit — all but the template's regions
     that scan badly (``data_mask``), except that the fingers of a hand fitted as a fist
@@ -372,9 +363,6 @@ def iter_fit(
     # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
     toes = toes_take_data(index)
     dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "", toes)
-    if shape_prior and not toes:  # a coarse scan's hands are mittens: the body prior's stand
-        tpl_ = ops.template
-        dm = dm & ~(tpl_.part_mask("hand_L") | tpl_.part_mask("hand_R"))
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (

@@ -1,6 +1,5 @@
-"""Feet of markerless fits: the toe tips' soft markers where the scanned feet end
-(``core.registration.foot_end``) and a closed mesh's flat sole cap taking no data
-(``core.registration.correspondence.sole_cap``)."""
+"""Feet of markerless fits: the toe tips' soft markers where the scanned feet end and the
+feet set to their scanned length (``core.registration.foot_end``)."""
 
 from __future__ import annotations
 
@@ -65,29 +64,45 @@ def test_toe_tip_markers_go_where_the_scanned_feet_end(realworld_case, kind):
     assert scanned_foot_end(index, truth + np.array([3.0, 0.0, 0.0]), "L") is None
 
 
-def test_a_closed_meshs_sole_cap_takes_no_data(realworld_case):
-    """closed_lowres-0 (soles cut 6 mm up and capped flat, as booth software does): the cap's
-    points take no data (weight 0, a boundary); its raw twin's soles are holes and keep all
-    their points; a real scanned sole that is not one plane (a dense cloud) is kept."""
-    from core.registration.correspondence import ScanIndex, sole_cap
+def test_feet_are_set_to_the_scanned_feet_length(realworld_case):
+    """closed_lowres-16: the true body with its feet 25 mm too long gets its forefeet shortened
+    along the foot until the toe tips lie just past the scanned feet's ends (within 6 mm of the
+    truth's; the round's soft marker alone had left them 10-11 mm long); the heel, the ankle's
+    ring and the shin stay put. The true body itself (its scanned end within the allowance) is
+    left alone."""
+    from core.registration.correspondence import ScanIndex
+    from core.registration.foot_end import FOREFOOT_FROM, correct_foot_lengths
+    from core.registration.hand_length import tip_allowance
+    from core.template import load_template
 
-    _, scan, _ = realworld_case(0, "closed_lowres")
+    _, scan, truth = realworld_case(16, "closed_lowres")
     index = ScanIndex(scan)
-    cap = index.sole_cap
-    assert cap.sum() >= 50, cap.sum()
-    y = scan.V[:, 1]
-    assert np.ptp(y[cap]) < 0.005 and y[cap].max() < np.percentile(y, 0.05) + 0.005
-    assert (scan.normals[cap, 1] < -0.9).all()
-    assert not index.point_weight[cap].any() and index.boundary[cap].all()
-    others = ~cap & ~np.asarray(scan.boundary, bool)
-    assert index.point_weight[others].min() > 0  # the rest of the closed mesh keeps its data
-    _, raw, _ = realworld_case(0, "raw")
-    assert not sole_cap(raw.V, raw.normals).any()
-    # a curved sole facing down (a bowl of points 2 cm deep) is skin, not a cut
-    u, v = np.meshgrid(np.linspace(-0.05, 0.05, 40), np.linspace(-0.12, 0.12, 60))
-    P = np.c_[u.ravel(), 0.02 * ((u / 0.05) ** 2 + (v / 0.12) ** 2).ravel(), v.ravel()]
-    N = np.c_[2 * 0.02 * P[:, 0] / 0.05**2, -np.ones(len(P)), 2 * 0.02 * P[:, 2] / 0.12**2]
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
-    assert not sole_cap(P, N).any()
-    # ... while the same points flattened into one plane are a cap
-    assert sole_cap(P * np.array([1.0, 0.0, 1.0]), np.tile([0.0, -1.0, 0.0], (len(P), 1))).all()
+    tpl = load_template()
+    L = tpl.landmarks
+    tip = tip_allowance(index)
+    long_ = _long_feet(truth, 0.025)
+    fixed, made = correct_foot_lengths(index, long_, tip)
+    assert [f.side for f in made] == ["L", "R"], made
+    for f in made:
+        assert f.target_m < f.fit_m - 0.015 and "to the scanned foot's end" in f.note()
+    for x in "LR":
+        heel, toe = truth[L[f"Calcaneus_posterior_{x}"]], truth[L[f"Toe_tip_{x}"]]
+        a = toe - heel
+        a[1] = 0.0
+        a /= np.linalg.norm(a)
+        along = (fixed[L[f"Toe_tip_{x}"]] - toe) @ a
+        assert abs(along) < 0.006, (x, along * 1000)
+        foot = tpl.part_mask(f"foot_{x}")
+        t = (
+            (long_ - long_[L[f"Calcaneus_posterior_{x}"]])
+            @ a
+            / np.linalg.norm(
+                (long_[L[f"Toe_tip_{x}"]] - long_[L[f"Calcaneus_posterior_{x}"]]) * [1, 0, 1]
+            )
+        )
+        still = foot & (t <= FOREFOOT_FROM)  # the heel and the ankle's ring
+        assert np.array_equal(fixed[still], long_[still])
+    feet = tpl.part_mask("foot_L") | tpl.part_mask("foot_R")
+    assert np.array_equal(fixed[~feet], long_[~feet])  # the shins and all the rest
+    same, none = correct_foot_lengths(index, truth, tip)
+    assert none == [] and np.array_equal(same, truth)

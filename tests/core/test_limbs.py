@@ -100,10 +100,10 @@ def test_open_hand_on_a_fist_is_not_good_and_the_fist_is(realworld_case):
 
 def test_a_fists_fingers_take_data(realworld_case):
     """closed_lowres-24 (fists fused into a closed mesh): fitted as fists, the curled fingers
-    take data in the body prior (``core.registration.fit.fit_data_mask``), so the fitted fist
-    ends where the scanned one does and the wrist stays at the truth's. Without their data the
-    fists hung 10-11 mm past the scan's and the wrists slid 15-16 mm down the forearms (hands
-    24 mm off the truth by correspondence; 11-13 with it)."""
+    take data (``core.registration.fit.fit_data_mask``), so the fitted fist ends where the
+    scanned one does and the wrist stays at the truth's. Without their data the fists hung
+    10-11 mm past the scan's and the wrists slid 15-16 mm down the forearms (hands 24 mm off
+    the truth by correspondence; 11-13 with it)."""
     from core.matching.markerless import fit_markerless
     from core.registration.fit import fit_data_mask, template_operators
     from core.registration.quality import part_labels
@@ -121,10 +121,6 @@ def test_a_fists_fingers_take_data(realworld_case):
     _, scan, truth = realworld_case(24, "closed_lowres")
     res = fit_markerless(scan)
     assert any("hands fitted as fists (L, R)" in n for n in res.report.notes), res.report.notes
-    # ... in the body prior: the refinement leaves a coarse mesh's hands (mittens) to it
-    hands = tpl.part_mask("hand_L") | tpl.part_mask("hand_R")
-    assert not res.data_weight[hands].any()
-    assert res.data_weight[tpl.part_mask("forearm_L")].any()
     labels, names = part_labels()
     JT, JF = joint_positions(truth, rig=rig), joint_positions(res.vertices, rig=rig)
     for x in "LR":

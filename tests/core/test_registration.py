@@ -310,3 +310,24 @@ def test_schedule_validation():
     with pytest.raises(ValueError, match="≥ 0"):
         Schedule((Stage(-1, 1, 1, "high"),))
     assert len(Schedule.paper().stages) == 4
+
+
+def test_soft_markers_guard_the_body_priors_landmarks(case):
+    """Markers that an earlier fit predicted (``soft_markers``, markerless rounds): the body
+    prior weighs them with the data, and the refinement's weak marker term then holds the
+    landmarks where the body prior put them instead of pulling them on to the predictions."""
+    rng = np.random.default_rng(5)
+    tpl = load_template()
+    noisy = {k: v + rng.normal(0.0, 0.01, 3) for k, v in case.markers.items()}
+    out = {}
+    for soft in (False, True):
+        res = fit(case.scan, noisy, schedule=Schedule.fast(), soft_markers=soft, retry=False)
+        names = res.report.markers_used
+        vid = [tpl.landmarks[k] for k in names]
+        P = np.array([noisy[k] for k in names])
+        to_prior = np.linalg.norm(res.vertices[vid] - res.body_prior.X[vid], axis=1).mean()
+        to_marks = np.linalg.norm(res.vertices[vid] - P, axis=1).mean()
+        out[soft] = (to_prior, to_marks)
+    # measured: landmarks 1.3 mm from the prior's with, 5.6 without; 13.3 / 8.9 from the marks
+    assert out[True][0] < 0.5 * out[False][0], out
+    assert out[True][1] > out[False][1], out
