@@ -7,7 +7,8 @@ prior's space that is often wrong: on the closed booth meshes of ``bench.realwor
 16 and 28, BMI 36 and 39) the fitted toe tips stood 13-19 mm past the truth's after the
 soft-marker round and 17-26 mm after the refinement, 16-29 mm past the end of the scanned foot,
 while the raw scans of the same bodies (toes with data) put them within 5 mm. The scan says
-where the foot ends: the round's toe-tip markers go there (:func:`scanned_foot_ends`).
+where the foot ends: the round's toe-tip markers go there (:func:`toe_tip_marker`), and after
+the round's body prior each forefoot is set to that length (:func:`correct_foot_lengths`).
 """
 
 from __future__ import annotations
@@ -75,12 +76,16 @@ def _heel_axis(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np.
 
 
 def scanned_foot_end(
-    index: ScanIndex, X: np.ndarray, side: str, template: Template | None = None
+    index: ScanIndex,
+    X: np.ndarray,
+    side: str,
+    template: Template | None = None,
+    body_tree: cKDTree | None = None,
 ) -> FootEnd | None:
     """Where the scanned foot ``side`` of the body ``X`` (13380, 3) ends along its axis: the
     :data:`END_RANK`-th furthest of the scan points whose nearest vertex of ``X`` lies on that
     foot or shin within :data:`FOOT_POINT_GAP_M`; None with fewer than :data:`MIN_FOOT_POINTS`
-    of them."""
+    of them. ``body_tree``: a KD-tree of ``X`` already built."""
     tpl = template or load_template()
     heel, a, length = _heel_axis(X, side, tpl)
     if length <= 0:
@@ -93,7 +98,8 @@ def scanned_foot_end(
     if len(ids) < MIN_FOOT_POINTS:
         return None
     P = index.points[ids]
-    d, nearest = cKDTree(X).query(P, distance_upper_bound=FOOT_POINT_GAP_M, workers=KD_WORKERS)
+    tree = cKDTree(X) if body_tree is None else body_tree
+    d, nearest = tree.query(P, distance_upper_bound=FOOT_POINT_GAP_M, workers=KD_WORKERS)
     near = np.isfinite(d)
     own = tpl.part_mask(f"foot_{side}") | tpl.part_mask(f"shin_{side}")
     keep = near & own[np.where(near, nearest, 0)]
@@ -109,9 +115,10 @@ def scanned_foot_ends(
     """Side -> :func:`scanned_foot_end` of both feet of the body ``X`` (13380, 3), where
     measurable."""
     tpl = template or load_template()
+    tree = cKDTree(X)
     out = {}
     for side in "LR":
-        end = scanned_foot_end(index, X, side, tpl)
+        end = scanned_foot_end(index, X, side, tpl, tree)
         if end is not None:
             out[side] = end
     return out
@@ -129,10 +136,7 @@ def correct_foot_lengths(
     tpl = template or load_template()
     out = X.copy()
     made: list[FootLength] = []
-    for side in "LR":
-        end = scanned_foot_end(index, X, side, tpl)
-        if end is None:
-            continue
+    for side, end in scanned_foot_ends(index, X, tpl).items():
         heel, a, length = _heel_axis(X, side, tpl)
         change = end.reach_m + allowance_m - length
         lo, hi = FOOT_CORRECTION_LIMITS
