@@ -78,6 +78,15 @@ class ScanIndex:
         d, _ = self.tree.query(sample, k=2, workers=KD_WORKERS)
         return float(np.median(d[:, 1]))
 
+    @cached_property
+    def closing_radius_m(self) -> float:
+        """Radius (metres) of the ball that reaches the whole scan surface from outside: what a
+        closed mesh's software bridged (:func:`core.registration.closed_concavities.
+        scan_closing_radius`); 0 for a raw scan."""
+        from core.registration.closed_concavities import scan_closing_radius
+
+        return scan_closing_radius(self.points, self.normals, self.tree, self.spacing_m)
+
     def closest_compatible(
         self,
         X: np.ndarray,

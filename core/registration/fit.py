@@ -23,6 +23,7 @@ import numpy as np
 
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
+from core.registration.closed_concavities import MIN_CLOSING_RADIUS_M, closed_over
 from core.registration.correspondence import (
     CONFIDENCE_FULL_AT,
     ScanIndex,
@@ -363,6 +364,9 @@ def iter_fit(
     # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
     toes = toes_take_data(index)
     dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "", toes)
+    if body.prior is not None and index.closing_radius_m >= MIN_CLOSING_RADIUS_M:
+        r = index.closing_radius_m
+        dm = dm & ~closed_over(body.V, tpl.F, r, vertices=np.flatnonzero(dm))
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (

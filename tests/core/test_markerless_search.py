@@ -630,7 +630,8 @@ def test_the_soft_marker_round_keeps_a_heavy_torsos_skin_from_sliding_down(tmp_p
     TRUNK_CHAINS`: each spine joint at its template share of the way from pelvis to neck)
     holds the waist up. Measured against the same fit without it (the torso's mean offset
     was 31.5 mm against 38.6 when the prior came; since the fists' fingers took data, hands
-    35 -> 24 mm and legs 24 -> 30, it is 37.9 against 42.9)."""
+    35 -> 24 mm and legs 24 -> 30, it is 37.9 against 42.9; the navel 39 against 62 mm since
+    the mesh's bridges take no data, ``core.registration.closed_concavities``)."""
     import core.matching.markerless as ml
     from core.io import load_scan
     from core.registration.quality import part_labels
@@ -654,7 +655,9 @@ def test_the_soft_marker_round_keeps_a_heavy_torsos_skin_from_sliding_down(tmp_p
     navel_free, off_free = errors(
         fit_markerless(load_scan(case.write(tmp_path / "h2.ply"))[0]).vertices
     )
-    assert navel < 60.0 and navel < navel_free - 30.0, (navel, navel_free)  # measured 40 / 91
+    # measured 38.8 / 61.7 (40 / 91 before the closed mesh's bridged navel took no data in the
+    # refinement: without the prior the navel no longer follows the bridge, but stays 62 mm off)
+    assert navel < 50.0 and navel < navel_free - 15.0, (navel, navel_free)
     assert off < off_free - 3.0, (off, off_free)  # measured 37.9 / 42.9
 
 
