@@ -82,10 +82,12 @@ class ScanIndex:
     def closing_radius_m(self) -> float:
         """Radius (metres) of the ball that reaches the whole scan surface from outside: what a
         closed mesh's software bridged (:func:`core.registration.closed_concavities.
-        scan_closing_radius`); 0 for a raw scan."""
+        scan_closing_radius`); 0 for a raw scan or one with holes."""
         from core.registration.closed_concavities import scan_closing_radius
 
-        return scan_closing_radius(self.points, self.normals, self.tree, self.spacing_m)
+        return scan_closing_radius(
+            self.points, self.normals, self.tree, self.spacing_m, self.boundary
+        )
 
     def closest_compatible(
         self,

@@ -19,6 +19,21 @@ def test_a_closed_mesh_reads_its_closing_radius_a_raw_scan_none(realworld_case):
     assert ScanIndex(raw).closing_radius_m == 0.0
 
 
+def test_a_scan_with_holes_has_no_closing_radius():
+    """The held-in simulated scans (``bench.cases``, small: 6 mm sampling, 17 % of the points on
+    hole boundaries) are sampled too sparsely to show a ball's way into their concavities (they
+    read 14 mm by the ball alone), but their holes say no software closed them."""
+    from bench.cases import make_case
+    from core.registration.closed_concavities import scan_closing_radius
+    from core.registration.correspondence import ScanIndex
+
+    index = ScanIndex(make_case(3, small=True).scan)
+    assert index.boundary.mean() > 0.1
+    assert index.closing_radius_m == 0.0
+    by_ball = scan_closing_radius(index.points, index.normals, index.tree, index.spacing_m)
+    assert by_ball >= 0.008  # the ball alone is fooled: the holes decide
+
+
 def _sphere(n: int = 40) -> tuple[np.ndarray, np.ndarray]:
     """A UV sphere of radius 0.1 m, outward-wound: (V, F)."""
     th, ph = np.meshgrid(np.linspace(0.05, np.pi - 0.05, n), np.linspace(0, 2 * np.pi, n + 1)[:-1])
