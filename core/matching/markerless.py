@@ -240,6 +240,17 @@ ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR
 #: 7.3 -> 5.9). It costs ~0.35 s CPU a fit, paid for by the refinement's factorisation
 #: (``ResolutionLevel.fill_reducing_order``, ~0.25 s CPU a factorisation).
 ROUND_ITERATIONS = 24
+#: Weight of the shape prior ‖c/σ‖² in the round's body prior (``fit_body_prior(
+#: shape_prior_weight=)``, in units of one data row, mm²; the search's fits keep 1). At 1 the
+#: round's ~8 000 data rows left the 60 coefficients all but free: on bodies off the prior's space
+#: the shape space bought a slightly closer surface with a slide of the skin, a different one for
+#: each delivery of a body. Twin diagnostic (the 8 closed_lowres/raw pairs of ``bench.realworld``,
+#: twins mean / closed and raw correspondence to the truth, mm): 1: 4.38 / 7.17 / 6.49, 30: 4.27 /
+#: 7.02 / 6.30, 150: 4.06 / 6.82 / 6.13, 400: 3.93 / 6.85 / 6.15, 1000: 3.82 / 6.96 / 6.33, 3000:
+#: 3.98 / 7.37 / 6.70; 400 in the search's first fit as well: 4.21 / 7.11 / 6.63. ``--heavy`` 20
+#: at 400: correspondence 14.05 -> 13.21 mm, twins 7.40 -> 6.65 (worst 10.1 -> 8.9), fit→scan
+#: 4.32 -> 4.11 mm.
+ROUND_SHAPE_PRIOR = 400.0
 #: Iterations of the round's second body prior, from the previous fit (it starts converged:
 #: 24 iterations gave the same five sets to the last digit).
 RESTART_ITERATIONS = 12
@@ -949,7 +960,7 @@ def fit_markerless(
                 "iterations": ROUND_ITERATIONS,
                 "hand_length": True, "foot_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
-                "trunk_prior": TRUNK_PRIOR,
+                "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
             },
             **options,
         )  # fmt: skip
