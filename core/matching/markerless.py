@@ -249,8 +249,17 @@ ROUND_ITERATIONS = 24
 #: 7.02 / 6.30, 150: 4.06 / 6.82 / 6.13, 400: 3.93 / 6.85 / 6.15, 1000: 3.82 / 6.96 / 6.33, 3000:
 #: 3.98 / 7.37 / 6.70; 400 in the search's first fit as well: 4.21 / 7.11 / 6.63. ``--heavy`` 20
 #: at 400: correspondence 14.05 -> 13.21 mm, twins 7.40 -> 6.65 (worst 10.1 -> 8.9), fit→scan
-#: 4.32 -> 4.11 mm.
+#: 4.32 -> 4.11 mm. With :data:`ROUND_POINT_WEIGHT` (stop 40): 400: 3.92 / 6.78 / 6.01, 1000:
+#: 3.77 / 6.87 / 6.17 — but on the varied 40 at 1000 correspondence 7.32 -> 7.45 mm and
+#: landmarks 8.52 -> 8.77 (``bench/results/realworld-2026-12-02-pw01-sp1000``): 400 kept.
 ROUND_SHAPE_PRIOR = 400.0
+#: Point-to-point share of the data rows in the round's body prior (as the search's,
+#: :data:`SEARCH_POINT_WEIGHT`; it was 0: point-to-plane rows alone). Twin diagnostic (as for
+#: :data:`ROUND_SHAPE_PRIOR`, shape prior 400): 0: 3.93 / 6.85 / 6.15, 0.05: 3.90 / 6.79 / 6.06,
+#: 0.1: 3.92 / 6.78 / 6.01, 0.3: 4.07 / 6.75 / 5.99. Varied 40 (``bench.realworld``) 0 -> 0.1:
+#: correspondence 7.40 -> 7.32 mm, landmarks 8.58 -> 8.52, scan→fit p95 2.12 -> 2.10, fit→scan
+#: 1.89 -> 1.88, verdicts 32/8/0 both.
+ROUND_POINT_WEIGHT = 0.1
 #: Iterations of the round's second body prior, from the previous fit (it starts converged:
 #: 24 iterations gave the same five sets to the last digit).
 RESTART_ITERATIONS = 12
@@ -961,6 +970,7 @@ def fit_markerless(
                 "hand_length": True, "foot_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
+                "point_weight": ROUND_POINT_WEIGHT,
             },
             **options,
         )  # fmt: skip

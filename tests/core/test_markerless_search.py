@@ -664,7 +664,9 @@ def test_the_soft_marker_round_keeps_a_heavy_torsos_skin_from_sliding_down(tmp_p
     # closed mesh's bridged navel took no data in the refinement)
     assert navel < 55.0 and navel < navel_free - 5.0, (navel, navel_free)
     # measured 28.5 / 40.9 (37.9 / 42.7 with the round's shape prior at 1)
-    assert off < 33.0 and off < off_free - 8.0, (off, off_free)
+    # measured 27.8 / 31.5 since the round's point-to-point rows (ROUND_POINT_WEIGHT, stop 40)
+    # also hold the skin of the fit without the trunk prior (28.5 / 40.9 before them)
+    assert off < 30.0 and off < off_free - 2.5, (off, off_free)
 
 
 def test_the_report_says_how_far_the_rounds_body_prior_moved_last(tmp_path, monkeypatch):
