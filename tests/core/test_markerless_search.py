@@ -660,12 +660,11 @@ def test_the_soft_marker_round_keeps_a_heavy_torsos_skin_from_sliding_down(tmp_p
     navel_free, off_free = errors(
         fit_markerless(load_scan(case.write(tmp_path / "h2.ply"))[0]).vertices
     )
-    # measured 50.4 / 57.1 (38.8 / 61.7 with the round's shape prior at 1; 40 / 91 before the
-    # closed mesh's bridged navel took no data in the refinement)
+    # measured 47.9 / 62.3 (50.4 / 57.1 before the round's point-to-point rows; 38.8 / 61.7 with
+    # the round's shape prior at 1; 40 / 91 before the closed mesh's bridged navel took no data)
     assert navel < 55.0 and navel < navel_free - 5.0, (navel, navel_free)
-    # measured 28.5 / 40.9 (37.9 / 42.7 with the round's shape prior at 1)
-    # measured 27.8 / 31.5 since the round's point-to-point rows (ROUND_POINT_WEIGHT, stop 40)
-    # also hold the skin of the fit without the trunk prior (28.5 / 40.9 before them)
+    # measured 27.8 / 31.5: the round's point-to-point rows (ROUND_POINT_WEIGHT) hold the skin of
+    # the fit without the trunk prior too (28.5 / 40.9 before them; 37.9 / 42.7 at shape prior 1)
     assert off < 30.0 and off < off_free - 2.5, (off, off_free)
 
 
