@@ -32,7 +32,7 @@ from core.registration.fit import (
     fit,
     template_operators,
 )
-from core.registration.foot_end import scanned_foot_ends, toe_tip_marker
+from core.registration.foot_end import scanned_foot_ends, toe_allowance, toe_tip_marker
 from core.registration.hand_length import (
     free_hand_ends,
     scanned_hand_roundness,
@@ -936,8 +936,9 @@ def fit_markerless(
                 marks[f"Dactylion_{x}"] = end.point + tip * end.axis
             # the toe tips just past where the scanned feet end (the first fit's came from the
             # shape coefficients where the toes take no data: ``core.registration.foot_end``)
+            toe = toe_allowance(round_index)
             for x, foot in scanned_foot_ends(round_index, res.vertices).items():
-                marks[f"Toe_tip_{x}"] = toe_tip_marker(res.vertices, x, foot, tip)
+                marks[f"Toe_tip_{x}"] = toe_tip_marker(res.vertices, x, foot, toe)
         # the round's body prior from the landmarks' alignment and rest pose, and from where the
         # previous fit's ended; the latter is kept where it scores better (two-way) by more than
         # the search's near-tie margin: from the rest pose a head could settle turned

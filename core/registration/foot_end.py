@@ -36,6 +36,19 @@ FOOT_CORRECTION_LIMITS = (-0.12, 0.08)
 #: share of the foot's length from the heel where its stretch begins: the ankle's ring (the foot's
 #: border with the shin) reaches 0.42 of the template's foot, and stays put
 FOREFOOT_FROM = 0.45
+#: the toe tip lies ``TOE_TIP_PER_SPACING × (spacing − TOE_TIP_SPACING_OFFSET_M)`` past the
+#: scanned foot's end (:func:`toe_allowance`; ``ScanIndex.spacing_m``). On the truths of
+#: ``bench.realworld``'s cases (diagnostic, 31 cases, both feet) the scanned end fell short of the
+#: toe tip by 1.0 mm on raw scans and clouds (sampling 1.6-1.7 mm), 1.4 on a dense one (2.4),
+#: 3.6 on closed meshes of 50-85 k vertices (2.7-3.0), 8.5 on closed meshes of 14-25 k
+#: (4.5-6.1; 3-13 case to case) and 11.6 on booth meshes of 10-11 k (6.0-7.2): the toes are
+#: thin, a coarse mesh rounds them off by about twice its sampling, more than a mitten's tip
+#: (:func:`~core.registration.hand_length.tip_allowance`, 1.2 × the sampling, which the feet
+#: used before: closed_lowres twins' closed feet 6-11 mm short of the raw twins')
+TOE_TIP_PER_SPACING = 2.2
+TOE_TIP_SPACING_OFFSET_M = 0.00125
+#: the toe allowance's bounds, metres
+TOE_ALLOWANCE_RANGE_M = (0.0005, 0.015)
 
 
 @dataclass
@@ -62,6 +75,14 @@ class FootEnd:
 
     reach_m: float
     axis: np.ndarray
+
+
+def toe_allowance(index: ScanIndex) -> float:
+    """Metres the toe tip lies past the scanned foot's end on this scan
+    (:data:`TOE_TIP_PER_SPACING`), within :data:`TOE_ALLOWANCE_RANGE_M`."""
+    lo, hi = TOE_ALLOWANCE_RANGE_M
+    excess = index.spacing_m - TOE_TIP_SPACING_OFFSET_M
+    return float(np.clip(TOE_TIP_PER_SPACING * excess, lo, hi))
 
 
 def _heel_axis(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np.ndarray, float]:

@@ -35,8 +35,8 @@ from scipy.spatial.transform import Rotation
 
 from core.geometry import row_norms
 from core.registration.correspondence import ScanIndex, other_foot_matches
-from core.registration.foot_end import FootLength, correct_foot_lengths
-from core.registration.hand_length import HandLength, correct_hand_lengths, tip_allowance
+from core.registration.foot_end import FootLength, correct_foot_lengths, toe_allowance
+from core.registration.hand_length import HandLength, correct_hand_lengths
 from core.registration.initialization import Similarity, umeyama
 from core.registration.operators import vertex_normals
 from core.rig import Rig, bone_transforms, finger_rotations, joint_positions, load_rig
@@ -1019,7 +1019,7 @@ def fit_body_prior(
         X, hands = correct_hand_lengths(index, X, stature, fists=fists)
     feet: list[FootLength] = []
     if index is not None and foot_length:
-        X, feet = correct_foot_lengths(index, X, tip_allowance(index))
+        X, feet = correct_foot_lengths(index, X, toe_allowance(index))
     return PriorFit(
         X=X, rest=rest, coefficients=c,
         pose={name: local[a].copy() for a, name in enumerate(POSE_BONES)},
