@@ -203,7 +203,8 @@ def template_operators(
 
 
 #: a scan sampled finer than this (``ScanIndex.spacing_m``, metres) shows the toes: they take
-#: data (:func:`fit_data_mask`). Raw multi-view scans read 1.7 mm, closed meshes of 60-100 k
+#: data (:func:`fit_data_mask`; in the body prior, and in a refinement without one: after it
+#: they are in :func:`sole_band`). Raw multi-view scans read 1.7 mm, closed meshes of 60-100 k
 #: vertices 2.7-2.9; booth meshes of 10-20 k vertices (4.9-7.3) fuse and round the toes off
 #: (their toes' data put ``bench.realworld``'s closed_lowres-4/-8 feet 6 -> 14 / 5 -> 12 mm off).
 TOE_DATA_MAX_SPACING_M = 0.004
@@ -379,14 +380,15 @@ def iter_fit(
     if soft_markers and body.prior is not None:  # the guard at the body prior's landmarks
         marker_pos = frame.to_solver(body.V[body.marker_vid])
     Vs = frame.to_solver_template(body.V)
-    # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`)
-    toes = toes_take_data(index)
+    # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`);
+    # after a body prior the feet's lower part (toes included) is the body prior's
+    toes = body.prior is None and toes_take_data(index)
     dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "", toes)
-    if body.prior is not None:  # the feet's lower part as the body prior fitted it
+    if body.prior is not None:
         dm = dm & ~sole_band(tpl)
-    if body.prior is not None and index.closing_radius_m >= MIN_CLOSING_RADIUS_M:
-        r = index.closing_radius_m
-        dm = dm & ~closed_over(body.V, tpl.F, r, vertices=np.flatnonzero(dm))
+        if index.closing_radius_m >= MIN_CLOSING_RADIUS_M:
+            r = index.closing_radius_m
+            dm = dm & ~closed_over(body.V, tpl.F, r, vertices=np.flatnonzero(dm))
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (
