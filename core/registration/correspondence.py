@@ -202,6 +202,22 @@ class ScanIndex:
         return d
 
 
+def normal_line_targets(
+    targets: np.ndarray, X0: np.ndarray, N0: np.ndarray, max_offset: float
+) -> np.ndarray:
+    """The data term's targets moved onto the body prior's normal lines.
+
+    Each target (n, 3) is replaced by the point of the line through the body prior's vertex
+    ``X0`` (n, 3) along its unit normal ``N0`` (n, 3) at the target's offset along that normal:
+    the data say how far out the skin lies, the body prior where along the surface it belongs.
+    Where the target lies farther than ``max_offset`` (metres) from that line the body prior is
+    off there and the target is kept. Returns the targets (n, 3).
+    """
+    on_line = X0 + np.einsum("ij,ij->i", targets - X0, N0)[:, None] * N0
+    near = np.linalg.norm(targets - on_line, axis=1) < max_offset
+    return np.where(near[:, None], on_line, targets)
+
+
 #: A point within this distance (metres) of the first fitted body whose normal points against
 #: the body's (dot below :data:`AGAINST_BODY_DOT`) is turned (:func:`normals_against_body`).
 NORMAL_CHECK_M = 0.05
