@@ -267,6 +267,9 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
     fit_file = scan.frame.to_file(result.vertices)
     row["_fit_body"] = (fit_file - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
     row["_truth_body"] = (np.asarray(case.truth, float) - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
+    if result.body_prior is not None:  # the body prior the refinement started from, the same way
+        prior_file = scan.frame.to_file(result.body_prior.X)
+        row["_prior_body"] = (prior_file - A[:3, 3]) @ np.linalg.inv(A[:3, :3]).T
     # each landmark's offset from the truth's in the body's own frame (x left, y up, z front):
     # what is systematic over cases is a bias of the fit, not noise
     off = (row["_fit_body"] - row["_truth_body"]) * MM
@@ -294,7 +297,8 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     distance whatever the correspondence (``surface_mm``: area samples of each to the other's
     surface, both ways); with the truths (``_truth_body``), each fit's mean offset from its
     truth along the up axis per quality part (``part_up_mm``: (closed, raw); the twins' along-
-    surface difference is mostly a slide of torso and legs along it)."""
+    surface difference is mostly a slide of torso and legs along it); with the body priors the
+    refinements started from (``_prior_body``), their own mean vertex distance (``prior_mm``)."""
     from core.geometry import MeshDistance, vertex_normals
     from core.registration.quality import part_labels, vertex_areas
     from core.template import load_template
@@ -335,6 +339,9 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "surface_mm": float((ab.mean() + ba.mean()) / 2 * MM),
             }
         )
+        if "_prior_body" in r and "_prior_body" in s:  # the body priors' own twins
+            dp = np.linalg.norm(r["_prior_body"] - s["_prior_body"], axis=1) * MM
+            out[-1]["prior_mm"] = float(dp.mean())
         if "_truth_body" in r and "_truth_body" in s:  # each fit's slide along the up axis
             T = r["_truth_body"]
             out[-1]["part_up_mm"] = {
@@ -591,7 +598,9 @@ def twin_part_lines(tw: list[dict[str, Any]]) -> list[str]:
     """Extra lines: each twin pair's vertex distance by quality part (mm)."""
     return [
         f"  twins seed {t['seed']}: across the surface {t['normal_mm']:.1f}, along it "
-        f"{t['tangential_mm']:.1f}, surface to surface {t['surface_mm']:.1f} mm; by part: "
+        f"{t['tangential_mm']:.1f}, surface to surface {t['surface_mm']:.1f} mm; "
+        + (f"the body priors' own {t['prior_mm']:.1f} mm; " if "prior_mm" in t else "")
+        + "by part: "
         + ", ".join(f"{p} {v:.1f}" for p, v in t["part_mm"].items())
         for t in tw
         if t.get("part_mm")

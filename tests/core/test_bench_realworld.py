@@ -139,6 +139,21 @@ def test_twins_report_each_fits_slide_along_the_up_axis():
     assert "part_up_mm" not in t
 
 
+def test_twins_report_the_body_priors_own():
+    """With the body priors kept (``_prior_body``), their own twin distance is reported beside
+    the fits': priors 4 mm apart, fits identical."""
+    from bench.realworld import twin_part_lines, twins
+
+    V = np.asarray(load_template().V, float)
+    P = V + np.array([0.004, 0.0, 0.0])
+    rows = [{"seed": 2, "kind": "closed_lowres", "_fit_body": V, "_prior_body": V},
+            {"seed": 2, "kind": "raw", "_fit_body": V, "_prior_body": P}]  # fmt: skip
+    (t,) = twins(rows)
+    assert t["mean_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert t["prior_mm"] == pytest.approx(4.0, abs=1e-6)
+    assert any("the body priors' own 4.0 mm" in line for line in twin_part_lines([t]))
+
+
 def test_twins_weighed_by_area_count_the_hands_by_their_skin():
     """Twins apart only in the hands (10 mm): by vertex 10 mm × the hands' 24 % of the
     template's vertices, by area 10 mm × their 4 % of its skin."""
