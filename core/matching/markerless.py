@@ -56,7 +56,6 @@ from core.registration.shape_prior import (
     LEG_CENTRE_PRIOR,
     LEG_TWIST_PRIOR,
     LIMB_PRIOR,
-    LIMB_TWIST_PRIOR,
     TRUNK_PRIOR,
     PriorFit,
     arm_pose,
@@ -226,11 +225,13 @@ def arm_hypotheses(scan: Scan) -> tuple[float, ...]:
 SCORE_SIGMA = 0.02
 #: The markerless search's pose prior: the arm bones', the head's and the thighs' twist.
 SEARCH_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
-#: The shape-space fits' bone prior: the search's, the feet's (:data:`FOOT_PRIOR`; in the
+#: The shape-space fits' bone prior: the search's and the feet's (:data:`FOOT_PRIOR`; in the
 #: search's short fits it changed which start won on heavy bodies: ``bench.realworld --heavy``
-#: raw-63 and raw-102 lost both arms) and the upper arms' and shins' twist
-#: (:data:`LIMB_TWIST_PRIOR`).
-MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR + LIMB_TWIST_PRIOR
+#: raw-63 and raw-102 lost both arms). A twist prior on the upper arms and shins as well (0.1,
+#: as the thighs' :data:`LEG_TWIST_PRIOR`) gained the twin diagnostic 0.01 mm and cost the
+#: turned palms (``bench.realworld --palms``, stop 42: correspondence 9.05 -> 9.32 mm, twins
+#: 5.28 -> 6.16): not kept.
+MARKERLESS_BONE_PRIOR = SEARCH_BONE_PRIOR + FOOT_PRIOR
 #: The soft-marker round's bone prior: the shape-space fits' and the clavicles'
 #: (:data:`~core.registration.shape_prior.CLAVICLE_PRIOR`).
 ROUND_BONE_PRIOR = MARKERLESS_BONE_PRIOR + CLAVICLE_PRIOR

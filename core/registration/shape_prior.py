@@ -177,16 +177,6 @@ CLAVICLE_PRIOR: tuple[tuple[str, float, float], ...] = (
 LEG_TWIST_PRIOR: tuple[tuple[str, float, float], ...] = (
     ("upperleg01.L", 0.0, 0.1), ("upperleg01.R", 0.0, 0.1),
 )  # fmt: skip
-#: The markerless shape-space fits' prior on the upper arms' and the shins' twist about their own
-#: axes (same units, added to :data:`BONE_PRIOR`), as :data:`LEG_TWIST_PRIOR` on the thighs: a
-#: nearly cylindrical limb's data barely turn it. Twin diagnostic (``bench.realworld``'s 8
-#: closed_lowres/raw pairs, mm): the upper arms, arms' along-surface twin difference in the body
-#: prior 3.4 -> 2.8-3.0, twins 3.633 -> 3.625, correspondence closed / raw 6.63 / 5.73 -> 6.61 /
-#: 5.70; with the shins, 3.619, 6.61 / 5.67.
-LIMB_TWIST_PRIOR: tuple[tuple[str, float, float], ...] = (
-    ("upperarm01.L", 0.0, 0.1), ("upperarm01.R", 0.0, 0.1),
-    ("lowerleg01.L", 0.0, 0.1), ("lowerleg01.R", 0.0, 0.1),
-)  # fmt: skip
 #: The markerless fit's prior on the feet's total rotation (same units, added to
 #: :data:`BONE_PRIOR`): standing people point their feet forward and flat, but where two feet
 #: stand close a coarse closed mesh fuses them and their data barely tell one foot's direction:
