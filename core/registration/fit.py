@@ -236,8 +236,10 @@ def sole_band(template: Template) -> np.ndarray:
 #: the surface on torso, arms and legs, on average away from the truth, and differently on two
 #: deliveries of one body (``bench.realworld``'s closed_lowres/raw twins: their along-surface
 #: difference 2.7-4.6 -> 3.1-4.9 mm by part). Not on the hands and feet, whose refinement moved
-#: them along the surface towards the truth. Twin diagnostic (8 pairs): twins 3.62 -> 3.55 mm,
-#: correspondence closed 6.61 -> 6.60, raw 5.67 -> 5.60.
+#: them along the surface towards the truth. Twin diagnostic (8 pairs, with a limb twist prior
+#: later taken out): twins 3.62 -> 3.55 mm, correspondence closed 6.61 -> 6.60, raw 5.67 -> 5.60;
+#: ``bench.realworld`` varied 40 as landed (with the hands' corrections from 2 mm): twins 3.63 ->
+#: 3.58, correspondence 7.16 -> 7.07 mm.
 NORMAL_LINE_FREE_PARTS = ("hand_L", "hand_R", "foot_L", "foot_R")
 #: a target farther than this (metres) from the body prior's normal line is kept as matched: the
 #: body prior is off there (a heavy body's crotch: targets on the normal line put vertices
