@@ -54,6 +54,13 @@ def test_hands_take_their_length_from_the_scan_or_the_stature(realworld_case, mo
     fore = tpl.part_mask("forearm_L") | tpl.part_mask("forearm_R")
     moved = np.linalg.norm(fixed[fore] - long_[fore], axis=1)
     assert np.median(moved) == 0.0 and moved.max() < 0.008, moved.max()
+    # a few mm too long is corrected too (MIN_CORRECTION_M: 2 mm; it was 6)
+    lengths = {s: _hand_length(fixed, s) for s in "LR"}
+    slightly = _scaled_hands(fixed, 1.0 + 0.004 / min(lengths.values()))
+    again, made = hand_length.correct_hand_lengths(index, slightly, stature)
+    assert [h.source for h in made] == ["scan", "scan"], made
+    for s in "LR":
+        assert abs(_hand_length(again, s) - lengths[s]) < 0.0015, made
     # a fist is left alone
     _, made_fist = hand_length.correct_hand_lengths(index, long_, stature, fists="LR")
     assert made_fist == []
