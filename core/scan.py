@@ -53,7 +53,7 @@ class FrameInfo:
     ``x_canonical = scale * R @ x_file``; ``R`` (3, 3) is a signed axis permutation.
     """
 
-    units: str  # "m", "cm" or "mm"
+    units: str  # "m", "cm", "mm" or "in" (core.io.frame.UNITS)
     up: str  # e.g. "+y", "+z"
     scale: float
     R: np.ndarray

@@ -27,11 +27,12 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from core.io.frame import UNITS_OPTIONS
 from core.serialize import json_ready
 
 PROG = "bodyspace"
 OUT_FORMATS = (".ply", ".obj", ".glb")
-UNITS_CHOICES = ("auto", "m", "cm", "mm")
+UNITS_CHOICES = UNITS_OPTIONS
 UP_CHOICES = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "core" / "assets" / "examples"
 

@@ -16,6 +16,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from sqlalchemy import and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
+from core.io.frame import UNITS_OPTIONS
 from service.blobs import BlobStore, sha256_file
 from service.db import aware, session_scope
 from service.deps import (
@@ -56,7 +57,7 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 }
 router = APIRouter(prefix="/v1", responses=ERRORS)
 
-UNITS = ("auto", "m", "cm", "mm")
+UNITS = UNITS_OPTIONS
 UPS = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 SCAN_EXT = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".npz": "npz", ".xyz": "xyz",
             ".pts": "pts", ".txt": "xyz", ".asc": "xyz", ".glb": "glb",

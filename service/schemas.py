@@ -20,7 +20,8 @@ from pydantic import (
 
 FitState = Literal["queued", "running", "succeeded", "failed"]
 FitMode = Literal["full", "markerless", "markers_only", "measurements"]
-MarkerUnits = Literal["auto", "m", "cm", "mm"]
+#: ``core.io.frame.UNITS_OPTIONS`` (a test holds them equal)
+MarkerUnits = Literal["auto", "m", "cm", "mm", "in"]
 Sex = Literal["female", "male"]
 MarkerUp = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 

@@ -14,8 +14,10 @@ Auto-detection rules
   **positive** (a file's up axis is assumed to point up, as every scanner
   we know writes it). Pass ``up="-y"`` etc. for upside-down files; a markerless fit that finds
   the body head-down turns the scan over (:func:`turn_over`).
-- **Units**: the body's height (robust extent along the up axis): 1.0-2.3 -> m, 100-230 -> cm,
-  1000-2300 -> mm; anything else is a :class:`UnitsError` naming the ``units=`` option.
+- **Units**: the body's height (robust extent along the up axis): 1.0-2.3 -> m, 39.4-90.6 ->
+  inches (``in``: 1.0-2.3 m; US apparel and anthropometry scanners write them), 100-230 -> cm,
+  1000-2300 -> mm; anything else is a :class:`UnitsError` naming the ``units=`` option. The
+  ranges do not overlap, so an adult's height tells them apart.
 """
 
 from __future__ import annotations
@@ -27,9 +29,16 @@ import numpy as np
 from core.errors import UnitsError
 from core.scan import FrameInfo, RawMesh, Scan
 
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+#: Canonical metres per file unit of each units name a scan (or markers) may be stored in.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+#: The units options of the readers, the CLI and the API: detection, or one of :data:`UNITS`.
+UNITS_OPTIONS = ("auto", *UNITS)
 UPS = ("+x", "-x", "+y", "-y", "+z", "-z")
-HEIGHT_RANGES = {"m": (1.0, 2.3), "cm": (100.0, 230.0), "mm": (1000.0, 2300.0)}
+#: Standing adults' heights (1.0-2.3 m) in each of :data:`UNITS`: detection reads the units off
+#: the height (:func:`detect_frame`).
+HEIGHT_RANGES = {
+    "m": (1.0, 2.3), "cm": (100.0, 230.0), "mm": (1000.0, 2300.0), "in": (39.37, 90.56),
+}  # fmt: skip
 DOMINANCE = 1.15
 
 HEAD_MARKERS = (
@@ -62,7 +71,7 @@ FOOT_MARKERS = (
 )
 
 _OPTIONS = (
-    'pass units="m", "cm" or "mm" and up="+x", "-x", "+y", "-y", "+z" or "-z" '
+    'pass units="m", "cm", "mm" or "in" and up="+x", "-x", "+y", "-y", "+z" or "-z" '
     "to say how the file is stored"
 )
 
@@ -183,7 +192,8 @@ def _units_from_height(h: float, up: str) -> str:
             return u
     raise UnitsError(
         f"cannot tell the units: the body is {h:.4g} units tall along {up}, which is not a "
-        "standing adult in metres (1.0-2.3), centimetres (100-230) or millimetres (1000-2300); "
+        "standing adult in metres (1.0-2.3), inches (39.4-90.6), centimetres (100-230) or "
+        "millimetres (1000-2300); "
         f"{_OPTIONS}",
         height=h,
         up=up,
@@ -202,7 +212,7 @@ def detect_frame(
     Parameters
     ----------
     V : (n, 3) vertex positions in the file's units and axes.
-    units : {"auto", "m", "cm", "mm"}
+    units : {"auto", "m", "cm", "mm", "in"}
     up : {"auto", "+x", "-x", "+y", "-y", "+z", "-z"}
     markers : name -> (3,) positions in the file's frame; head and foot landmarks decide the
         up axis when ``up="auto"``.
@@ -221,7 +231,9 @@ def detect_frame(
     units = str(units).lower()
     up = str(up).lower()
     if units not in ("auto", *UNITS):
-        raise UnitsError(f"unknown units {units!r}; use 'auto', 'm', 'cm' or 'mm'", units=units)
+        raise UnitsError(
+            f"unknown units {units!r}; use 'auto', 'm', 'cm', 'mm' or 'in' (inches)", units=units
+        )
     if up not in ("auto", *UPS):
         raise UnitsError(f"unknown up axis {up!r}; use 'auto' or one of {', '.join(UPS)}", up=up)
     V = np.asarray(V, dtype=np.float64)

@@ -397,7 +397,7 @@ def load_scan(
     Parameters
     ----------
     path : scan file (or its bytes, then give ``fmt``).
-    units : {"auto", "m", "cm", "mm"}; up : {"auto", "+x", "-x", "+y", "-y", "+z", "-z"}.
+    units : {"auto", "m", "cm", "mm", "in"}; up : {"auto", "+x", "-x", "+y", "-y", "+z", "-z"}.
     markers_path : optional marker file (CSV/JSON) in the scan file's units and axes.
     fmt : scan format, by default from the extension or content.
 

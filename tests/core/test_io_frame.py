@@ -33,7 +33,9 @@ def test_zup_keeps_facing_conventional():
     np.testing.assert_allclose(rotation_for_up("+z") @ [1, 2, 3], [1, 3, -2])
 
 
-@pytest.mark.parametrize(("units", "scale"), [("m", 1.0), ("cm", 0.01), ("mm", 0.001)])
+@pytest.mark.parametrize(
+    ("units", "scale"), [("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254)]
+)
 @pytest.mark.parametrize("up", ["+y", "+z", "+x"])
 def test_auto_detects_units_and_positive_up(units, scale, up):
     V = to_file(TPL.V, up, scale)
@@ -68,11 +70,12 @@ def test_markers_without_head_and_foot_fall_back_to_extent():
 
 
 def test_ambiguous_size_names_the_options():
-    V = TPL.V / TPL.V[:, 1].max() * 50.0  # 50 units tall: neither m, cm nor mm
+    V = TPL.V / TPL.V[:, 1].max() * 25.0  # 25 units tall: neither m, in, cm nor mm
     with pytest.raises(UnitsError) as e:
         detect_frame(V)
     msg = str(e.value)
     assert "units tall" in msg and "units=" in msg and '"mm"' in msg and "up=" in msg
+    assert '"in"' in msg and "inches (39.4-90.6)" in msg
     assert detect_frame(V, units="cm").units == "cm"  # explicit units are trusted
 
 
@@ -81,6 +84,18 @@ def test_ambiguous_up_axis():
     V = rng.random((2000, 3)) * [1.7, 1.6, 0.3]  # two nearly equal extents
     with pytest.raises(UnitsError, match=r"which axis is up.*up="):
         detect_frame(V)
+
+
+@pytest.mark.parametrize(("height", "units"), [(40.0, "in"), (90.0, "in"), (99.0, None),
+                                               (2.4, None), (229.0, "cm")])  # fmt: skip
+def test_height_ranges_do_not_overlap_and_bound_each_unit(height, units):
+    """Inches hold 1.0-2.3 m adults (39.4-90.6 in); between the ranges no unit is guessed."""
+    V = TPL.V / np.ptp(TPL.V[:, 1]) * height
+    if units is None:
+        with pytest.raises(UnitsError, match="cannot tell the units"):
+            detect_frame(V)
+    else:
+        assert detect_frame(V).units == units
 
 
 def test_unknown_options():

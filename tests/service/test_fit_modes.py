@@ -83,6 +83,28 @@ def test_markers_only_fit_without_scan(client, client_b, server, sim):
     assert not list(blobs.glob(f"*/fits/{fit['id']}*"))
 
 
+def test_markers_only_in_inches(client, sim):
+    """US scanners' inches: declared or detected from the markers' height, the fit in metres."""
+    inch = {k: (np.asarray(v) / 0.0254).tolist() for k, v in _markers(sim).items()}
+    for units in ("in", "auto"):
+        body = {"mode": "markers_only", "markers": inch, "units": units, "up": "auto"}
+        r = client.post("/v1/fits", json=body)
+        assert r.status_code == 202, r.text
+        assert r.json()["options"]["units"] == "in" and r.json()["options"]["up"] == "+y"
+        done = wait_state(client, r.json()["id"])
+        assert done["state"] == "succeeded", done
+        assert _error_mm(client, done["id"], sim.truth).mean() < 15.0
+
+
+def test_marker_units_are_the_frames_options():
+    from typing import get_args
+
+    from core.io.frame import UNITS_OPTIONS
+    from service.schemas import MarkerUnits
+
+    assert set(get_args(MarkerUnits)) == set(UNITS_OPTIONS)
+
+
 def test_markers_only_in_mm_z_up(client, sim):
     R = rotation_for_up("+z")  # file -> canonical
     mm = {k: (1000.0 * (R.T @ np.asarray(v))).tolist() for k, v in _markers(sim).items()}
