@@ -254,7 +254,9 @@ ROUND_ITERATIONS = 24
 #: at 400: correspondence 14.05 -> 13.21 mm, twins 7.40 -> 6.65 (worst 10.1 -> 8.9), fit→scan
 #: 4.32 -> 4.11 mm. With :data:`ROUND_POINT_WEIGHT` (stop 40): 400: 3.92 / 6.78 / 6.01, 1000:
 #: 3.77 / 6.87 / 6.17 — but on the varied 40 at 1000 correspondence 7.32 -> 7.45 mm and
-#: landmarks 8.52 -> 8.77 (``bench/results/realworld-2026-12-02-pw01-sp1000``): 400 kept.
+#: landmarks 8.52 -> 8.77 (``bench/results/realworld-2026-12-02-pw01-sp1000``): 400 kept. Stop 43
+#: (on 21f4c37): 400: 3.58 / 6.62 / 5.67, 1000: 3.44 / 6.71 / 5.78, 1000 on closed meshes only
+#: (the coarse, smoothed deliveries): 3.66 / 6.71 / 5.67 (``bench/README.md``, stop 43).
 ROUND_SHAPE_PRIOR = 400.0
 #: Point-to-point share of the data rows in the round's body prior (as the search's,
 #: :data:`SEARCH_POINT_WEIGHT`; it was 0: point-to-plane rows alone). Twin diagnostic (as for
