@@ -106,5 +106,8 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
         r = index.closing_radius_m
         assert not takes[closed_over(res.body_prior.X, tpl.F, r) & dmask].any()
         assert takes[dmask & ~under].mean() > 0.8
+        assert any(n.startswith("hole-filled closed mesh: ") and f"{r * 1000:.0f} mm ball" in n
+                   for n in res.report.notes), res.report.notes  # fmt: skip
     else:
         assert takes[under].mean() > 0.5, takes[under].mean()
+        assert not any(n.startswith("hole-filled closed mesh") for n in res.report.notes)
