@@ -841,7 +841,14 @@ def assess_fit(
         if n_pts < MIN_POINTS:  # data for a whole part missing: the part may be lost
             pv = "failed" if figures["coverage"] < THRESHOLDS["coverage"].failed else pv
             scan_cannot_tell = False
-            pr.insert(0, f"{name}: only {n_pts} scan points near it")
+            # the hand-shape hints presuppose a scanned hand: with none, they mislead
+            pr = [r for r in pr if "(an open hand fitted to a fist?)" not in r]
+            pr.insert(
+                0,
+                f"{name}: only {n_pts} scan points near it (missing from the scan: cut off, "
+                "held out of the scanner's view or not there); its shape and place are the body "
+                "prior's guess",
+            )
             if pv == "good":
                 pv = "suspect"
         parts[name] = PartQuality(

@@ -497,3 +497,30 @@ def test_hand_resting_on_the_body_is_unresolved_not_misfitted(tmp_path, case, fi
         r = assess_fit(case.scan, X)
         assert min(r.parts[s].hand_body_gap_m for s in ("hand_L", "hand_R")) > 3 * lim
         assert r.unresolved == []
+
+
+def test_a_hand_missing_from_the_scan_is_named_missing_not_a_fist(tmp_path):
+    """closed_lowres-8 with its left hand cut off (every scan point within 3 cm of the truth's
+    hand removed: an amputee, or a hand out of the scanner's view): the markerless fit fails
+    that hand as missing from the scan, without the fist hint (no hand was scanned), and keeps
+    the other hand's and the rest's verdicts."""
+    from scipy.spatial import cKDTree
+
+    from core.io import load_scan, write_ply
+    from core.matching.markerless import fit_markerless
+    from core.synth.scanner_outputs import make_case
+
+    tpl = load_template()
+    case = make_case(8, "closed_lowres")  # mm, +Y up
+    far = cKDTree(case.truth[tpl.part_mask("hand_L")]).query(case.V)[0] > 30.0
+    new = np.cumsum(far) - 1
+    F = new[case.F[far[case.F].all(axis=1)]]
+    path = tmp_path / "no-left-hand.ply"
+    write_ply(path, case.V[far], F)
+    scan, _ = load_scan(path)
+    q = fit_markerless(scan).report.quality
+    hand = [r for r in q.reasons if r.startswith("hand_L:")]
+    assert q.parts["hand_L"].quality == "failed", q.reasons
+    assert hand[0].startswith("hand_L: only 0 scan points near it (missing from the scan"), hand
+    assert not any("fitted to a fist" in r for r in hand), hand
+    assert q.parts["hand_R"].quality != "failed" and q.parts["torso"].quality == "good", q.reasons
