@@ -83,19 +83,6 @@ def test_markers_only_fit_without_scan(client, client_b, server, sim):
     assert not list(blobs.glob(f"*/fits/{fit['id']}*"))
 
 
-def test_markers_only_in_inches(client, sim):
-    """US scanners' inches: declared or detected from the markers' height, the fit in metres."""
-    inch = {k: (np.asarray(v) / 0.0254).tolist() for k, v in _markers(sim).items()}
-    for units in ("in", "auto"):
-        body = {"mode": "markers_only", "markers": inch, "units": units, "up": "auto"}
-        r = client.post("/v1/fits", json=body)
-        assert r.status_code == 202, r.text
-        assert r.json()["options"]["units"] == "in" and r.json()["options"]["up"] == "+y"
-        done = wait_state(client, r.json()["id"])
-        assert done["state"] == "succeeded", done
-        assert _error_mm(client, done["id"], sim.truth).mean() < 15.0
-
-
 def test_marker_units_are_the_frames_options():
     from typing import get_args
 
@@ -105,20 +92,32 @@ def test_marker_units_are_the_frames_options():
     assert set(get_args(MarkerUnits)) == set(UNITS_OPTIONS)
 
 
+def _markers_only_in(client, sim, markers: dict, frames: tuple, want: tuple[str, str]) -> None:
+    """Markers-only fits of ``markers`` (in some file frame) declared as each (units, up) of
+    ``frames``: each job's frame is ``want`` and its fit lands on the truth."""
+    for units, up in frames:
+        body = {"mode": "markers_only", "markers": markers, "units": units, "up": up}
+        r = client.post("/v1/fits", json=body)
+        assert r.status_code == 202, r.text
+        assert (r.json()["options"]["units"], r.json()["options"]["up"]) == want
+        done = wait_state(client, r.json()["id"])
+        assert done["state"] == "succeeded", done
+        assert _error_mm(client, done["id"], sim.truth).mean() < 15.0
+
+
 def test_markers_only_in_mm_z_up(client, sim):
     R = rotation_for_up("+z")  # file -> canonical
     mm = {k: (1000.0 * (R.T @ np.asarray(v))).tolist() for k, v in _markers(sim).items()}
     # in mm but declared metres (the default): refused before the job exists
     _check(client.post("/v1/fits", json={"mode": "markers_only", "markers": mm}), 422,
            "ambiguous_units")  # fmt: skip
-    for units, up in (("mm", "+z"), ("auto", "auto")):
-        body = {"mode": "markers_only", "markers": mm, "units": units, "up": up}
-        r = client.post("/v1/fits", json=body)
-        assert r.status_code == 202, r.text
-        assert r.json()["options"]["units"] == "mm" and r.json()["options"]["up"] == "+z"
-        done = wait_state(client, r.json()["id"])
-        assert done["state"] == "succeeded", done
-        assert _error_mm(client, done["id"], sim.truth).mean() < 15.0
+    _markers_only_in(client, sim, mm, (("mm", "+z"), ("auto", "auto")), ("mm", "+z"))
+
+
+def test_markers_only_in_inches(client, sim):
+    """US scanners' inches: declared or detected from the markers' height, the fit in metres."""
+    inch = {k: (np.asarray(v) / 0.0254).tolist() for k, v in _markers(sim).items()}
+    _markers_only_in(client, sim, inch, (("in", "auto"), ("auto", "auto")), ("in", "+y"))
 
 
 def test_markers_only_from_the_scans_marker_file(client, sim):
