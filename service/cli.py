@@ -32,7 +32,6 @@ from core.serialize import json_ready
 
 PROG = "bodyspace"
 OUT_FORMATS = (".ply", ".obj", ".glb")
-UNITS_CHOICES = UNITS_OPTIONS
 UP_CHOICES = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "core" / "assets" / "examples"
 
@@ -357,7 +356,7 @@ def register_fit(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, metavar="FIT", help="fitted body: .ply, .obj or .glb")
     p.add_argument("--report", metavar="REPORT.json", help="write the JSON fit report here")
-    p.add_argument("--units", choices=UNITS_CHOICES, default="auto", help="scan units")
+    p.add_argument("--units", choices=UNITS_OPTIONS, default="auto", help="scan units")
     p.add_argument("--up", choices=UP_CHOICES, default="auto", help="scan up axis")
     p.add_argument(
         "--schedule",

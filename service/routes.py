@@ -57,7 +57,6 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 }
 router = APIRouter(prefix="/v1", responses=ERRORS)
 
-UNITS = UNITS_OPTIONS
 UPS = ("auto", "+x", "-x", "+y", "-y", "+z", "-z")
 SCAN_EXT = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".npz": "npz", ".xyz": "xyz",
             ".pts": "pts", ".txt": "xyz", ".asc": "xyz", ".glb": "glb",
@@ -170,8 +169,8 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
         raise ApiError("missing_field", "missing required field: scan (a file part)", field="scan")
     units = form.fields.get("units", "auto").strip().lower() or "auto"
     up = form.fields.get("up", "auto").strip().lower() or "auto"
-    if units not in UNITS:
-        raise ApiError("validation_error", f"units must be one of {UNITS}", field="units")
+    if units not in UNITS_OPTIONS:
+        raise ApiError("validation_error", f"units must be one of {UNITS_OPTIONS}", field="units")
     if up not in UPS:
         raise ApiError("validation_error", f"up must be one of {UPS}", field="up")
     fmt = SCAN_EXT.get(Path(scan.filename).suffix.lower())
@@ -212,7 +211,7 @@ SCAN_BODY = {
                                  "textures), STL, NPZ or XYZ scan"},
                         "markers": {"type": "string", "format": "binary",
                                     "description": "CSV name,x,y,z or JSON {name: [x,y,z]}"},
-                        "units": {"type": "string", "enum": list(UNITS), "default": "auto"},
+                        "units": {"type": "string", "enum": list(UNITS_OPTIONS), "default": "auto"},
                         "up": {"type": "string", "enum": list(UPS), "default": "auto"},
                     },
                 }

@@ -230,7 +230,7 @@ def detect_frame(
     """
     units = str(units).lower()
     up = str(up).lower()
-    if units not in ("auto", *UNITS):
+    if units not in UNITS_OPTIONS:
         raise UnitsError(
             f"unknown units {units!r}; use 'auto', 'm', 'cm', 'mm' or 'in' (inches)", units=units
         )

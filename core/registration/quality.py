@@ -203,6 +203,9 @@ EXTREMITY_FACTOR = 1.5
 COVERAGE_DISTANCE_M = 0.015
 COVERAGE_ANGLE_DEG = 60.0
 MIN_POINTS = 30
+#: The fingertip-gap reason's hint (a scanned fist under an open hand), left out where the part
+#: has no scan data at all
+FIST_HINT = "(an open hand fitted to a fist?)"
 SAMPLE_POINTS = 20_000
 NEAR_DISTANCE_M = 0.03
 
@@ -383,8 +386,7 @@ def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str], se
             )
         elif key == "hand_tip_gap_m":
             reasons.append(
-                f"{part}: its fingertips are {v * 1000:.0f} mm from the scan "
-                "(an open hand fitted to a fist?)"
+                f"{part}: its fingertips are {v * 1000:.0f} mm from the scan {FIST_HINT}"
             )
         elif key == "hand_body_gap_m":
             reasons.append(
@@ -842,7 +844,7 @@ def assess_fit(
             pv = "failed" if figures["coverage"] < THRESHOLDS["coverage"].failed else pv
             scan_cannot_tell = False
             # the hand-shape hints presuppose a scanned hand: with none, they mislead
-            pr = [r for r in pr if "(an open hand fitted to a fist?)" not in r]
+            pr = [r for r in pr if FIST_HINT not in r]
             pr.insert(
                 0,
                 f"{name}: only {n_pts} scan points near it (missing from the scan: cut off, "
