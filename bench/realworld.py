@@ -175,15 +175,18 @@ def removal_check(P: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
     }
 
 
-def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -> dict[str, Any]:
-    """Make, write, fit and measure one case; never raises (failures are recorded)."""
+def run_case(
+    seed: int, kind: str, markers: bool, keep_dir: str | None = None, hair: str | None = None
+) -> dict[str, Any]:
+    """Make, write, fit and measure one case (``hair``: that style on its head instead of the
+    kind's own, ``make_case(hair=)``); never raises (failures are recorded)."""
     from core.errors import BodyspaceError
     from core.geometry import MeshDistance
     from core.synth.scanner_outputs import make_case
     from service.cli import run_fit
 
     t0 = time.perf_counter()
-    case = make_case(seed, kind)
+    case = make_case(seed, kind, hair=hair)
     row: dict[str, Any] = {
         "seed": seed,
         "kind": kind,
@@ -278,8 +281,10 @@ def run_case(seed: int, kind: str, markers: bool, keep_dir: str | None = None) -
 
 
 def _run(args: tuple) -> dict[str, Any]:
+    """:func:`run_case` of ``(seed, kind, markers, hair)``."""
     try:
-        return run_case(*args)
+        seed, kind, markers, hair = args
+        return run_case(seed, kind, markers, hair=hair)
     except Exception as e:  # a case that cannot even be made
         return {
             "seed": args[0],
@@ -649,6 +654,13 @@ def main(argv: list[str] | None = None) -> int:
         help="--cases bodies with both palms turned 45-100° forwards or backwards (closed_palms/"
         "raw_palms twins) instead of the varied set",
     )
+    ap.add_argument(
+        "--hair",
+        default=None,
+        help="put this hair style on every case's head instead of its own (one of "
+        "core.synth.scanner_outputs' HAIR_STYLES or EXTRA_HAIR_STYLES, e.g. long: loose hair "
+        "to the shoulders); not for the dense kind, whose cases are left out",
+    )
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
     ap.add_argument("--from-partial", metavar="JSONL", help="print the report of a partial run")
     args = ap.parse_args(argv)
@@ -662,6 +674,8 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.suppress(OSError):
         os.nice(max(0, 10 - os.nice(0)))  # niceness 10 in all, also when started with nice
     from core.synth.scanner_outputs import (
+        EXTRA_HAIR_STYLES,
+        HAIR_STYLES,
         KINDS,
         benchmark_cases,
         booth_cases,
@@ -688,7 +702,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds:
         seeds = {int(x) for x in args.seeds.split(",")}
         cases = [c for c in cases if c[0] in seeds]
-    todo = [(s, k, args.markers) for s, k in cases]
+    if args.hair is not None:
+        if args.hair not in HAIR_STYLES + EXTRA_HAIR_STYLES:
+            ap.error(f"--hair: one of {', '.join(HAIR_STYLES + EXTRA_HAIR_STYLES)}")
+        cases = [c for c in cases if c[1] != "dense"]
+    todo = [(s, k, args.markers, args.hair) for s, k in cases]
     t0 = time.perf_counter()
     commit = _commit()
     print(
@@ -702,6 +720,7 @@ def main(argv: list[str] | None = None) -> int:
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-palms' if args.palms else ''}"
+        f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )
     partial = RESULTS / f"{stem}.partial.jsonl"  # one line per finished case, while running

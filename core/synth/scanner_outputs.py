@@ -22,7 +22,12 @@ Decisions
   two faces (tested).
 - **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
   opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
-  back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``.
+  back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``; and,
+  only when asked for (``make_case(..., hair="long")``, not in the drawn styles, so every drawn
+  case stays as it was), ``long``: loose hair to the shoulders — a layer of 1–2.5 cm over the
+  crown and the back of the head, then a curtain hanging straight down from the back of the head
+  to 3–20 cm below the cervicale, bridging the nape and lying on the upper back, as wide as the
+  head at the ears and up to 11 cm each side of the midline at its ends (:func:`_long_hair`).
 - **Booth meshes** (``closed_booth``, :func:`booth_cases`): issue 12's real subjects all at once:
   a closed mesh regridded once to a drawn 10–15 k vertices, mm, +Y up, hair drawn from none and
   :data:`HAIR_STYLES`, arms fused to the torso in 40 %, a floor plate in 20 %, any BMI (heavy
@@ -70,6 +75,9 @@ from core.template import load_template
 UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
 UPS = ("+x", "-x", "+y", "-y", "+z", "-z")
 HAIR_STYLES = ("bun", "ponytail", "cap", "cap+bun")
+#: Hair styles made only when asked for by name (``make_case(hair=)``): never drawn, so adding
+#: them left every drawn case as it was.
+EXTRA_HAIR_STYLES = ("long",)
 
 #: Case kinds: family name -> what it is.
 KINDS = {
@@ -213,8 +221,13 @@ def hair_volume(V: np.ndarray, style: str, rng: np.random.Generator):
         tree = cKDTree(scalp)
         params["cap"] = {"thickness": th}
         tests.append(lambda P, tree=tree, th=th, y0=y0: (tree.query(P)[0] < th) & (P[:, 1] > y0))
+    if style == "long":
+        long_test, params["long"] = _long_hair(V, rng)
+        tests.append(long_test)
     if not tests:
-        raise ValueError(f"hair style must be one of {HAIR_STYLES}, got {style!r}")
+        raise ValueError(
+            f"hair style must be one of {HAIR_STYLES + EXTRA_HAIR_STYLES}, got {style!r}"
+        )
     params["top_m"] = float(top[1])
 
     def inside(P: np.ndarray) -> np.ndarray:
@@ -224,6 +237,89 @@ def hair_volume(V: np.ndarray, style: str, rng: np.random.Generator):
         return out
 
     return inside, params
+
+
+def _long_hair(V: np.ndarray, rng: np.random.Generator):
+    """Loose shoulder-length hair for a body ``V`` (13380, 3; metres, +Y up, facing +Z): an
+    inside test (k, 3) -> (k,) bool and its parameters. A layer of thickness ``th`` over the
+    scalp above the ears' level, and a curtain that hangs straight down from the back of the head
+    (its back-most depth in each 5 mm column across) to ``length`` below the cervicale: where the
+    neck curves in under the occiput the curtain bridges it, where the upper back reaches farther
+    back the hair lies on it (``th`` thick, thinning to half at the ends); never in front of the
+    ears."""
+    tpl = load_template()
+    lm = {k: V[i] for k, i in tpl.landmarks.items()}
+    th = float(rng.uniform(0.01, 0.025))
+    length = float(rng.uniform(0.03, 0.20))
+    half_end = float(rng.uniform(0.08, 0.11))
+    y_top = 0.5 * (lm["Tragion_L"][1] + lm["Tragion_R"][1])
+    y_end = float(lm["Cervicale"][1]) - length
+    head = tpl.part_mask("head")
+    H = V[head & (V[:, 1] > lm["Cervicale"][1] + 0.03)]
+    cx = float(0.5 * (lm["Tragion_L"][0] + lm["Tragion_R"][0]))
+    half_top = float(0.5 * abs(lm["Tragion_L"][0] - lm["Tragion_R"][0]))
+    z_ears = float(0.5 * (lm["Tragion_L"][2] + lm["Tragion_R"][2]))  # the curtain hangs behind
+    cell = 0.005
+    x0 = cx - 0.15
+    nx = int(0.30 / cell) + 1
+    # the back of the head's depth per column across (the curtain hangs from it)
+    ixh = np.clip(((H[:, 0] - x0) / cell).astype(int), 0, nx - 1)
+    zc = np.full(nx, np.inf)
+    np.minimum.at(zc, ixh, H[:, 2])
+    ok = np.isfinite(zc)
+    zc = np.interp(np.arange(nx), np.flatnonzero(ok), zc[ok])
+    # the body's back surface per (x, y) cell over the curtain's span (torso, neck, head)
+    S, _ = _surface_samples(V, np.asarray(tpl.F, np.int64), 0.004, rng)
+    y0 = y_end - 0.03
+    ny = int((y_top - y0) / cell) + 2
+    sel = (np.abs(S[:, 0] - cx) < 0.15) & (S[:, 1] > y0) & (S[:, 1] < y_top + cell)
+    sel &= S[:, 2] < np.median(V[:, 2])  # the back half (arms hang beside, not behind)
+    Q = S[sel]
+    zb = np.full((nx, ny), np.inf)
+    np.minimum.at(
+        zb,
+        (np.clip(((Q[:, 0] - x0) / cell).astype(int), 0, nx - 1),
+         np.clip(((Q[:, 1] - y0) / cell).astype(int), 0, ny - 1)),
+        Q[:, 2],
+    )  # fmt: skip
+    zb = ndimage.minimum_filter(zb, size=3)  # close the sampling's gaps
+
+    def inside(P: np.ndarray) -> np.ndarray:
+        ix = np.clip(((P[:, 0] - x0) / cell).astype(int), 0, nx - 1)
+        iy = np.clip(((P[:, 1] - y0) / cell).astype(int), 0, ny - 1)
+        t = np.clip((y_top - P[:, 1]) / (y_top - y_end), 0.0, 1.0)
+        w = half_top + (half_end - half_top) * t
+        thick = th * (1.0 - 0.5 * t)
+        back = zb[ix, iy]
+        outer = np.minimum(zc[ix], back) - thick
+        inner = np.where(np.isfinite(back), back + 0.005, outer + thick)
+        return (
+            (P[:, 1] > y_end) & (P[:, 1] < y_top) & (np.abs(P[:, 0] - cx) < w)
+            & (P[:, 2] >= outer) & (P[:, 2] <= np.minimum(inner, z_ears))
+        )  # fmt: skip
+
+    back_of_head = (V[:, 2] < lm["Tragion_L"][2]) | (V[:, 1] > lm["Glabella"][1] + 0.04)
+    scalp = V[head & (V[:, 1] > y_top) & back_of_head]
+    tree = cKDTree(scalp)
+
+    def test(P: np.ndarray) -> np.ndarray:
+        return ((tree.query(P)[0] < th) & (P[:, 1] > y_top)) | inside(P)
+
+    params = {"thickness": th, "length_below_cervicale": length, "half_width_end": half_end,
+              "bottom_m": y_end}  # fmt: skip
+    return test, params
+
+
+def hair_box(V: np.ndarray, params: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lo, hi; metres) that holds the hair drawn with ``params`` on body ``V``: around
+    the head, and down to the ends of long hair."""
+    head = V[load_template().part_mask("head")]
+    lo = head.min(axis=0) - 0.1
+    hi = head.max(axis=0) + np.array([0.1, 0.08, 0.1])
+    if "long" in params:
+        lo = np.minimum(lo, [lo[0] - 0.05, params["long"]["bottom_m"] - 0.02, lo[2] - 0.05])
+        hi = hi + np.array([0.05, 0.0, 0.0])
+    return lo, hi
 
 
 def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
@@ -291,7 +387,7 @@ def closed_mesh(
     lo, hi = V.min(axis=0), V.max(axis=0)
     if hair is not None:
         hair_in, info["hair"] = hair_volume(V, hair, rng)
-        lo, hi = lo - 0.1, hi + np.array([0.1, 0.08, 0.1])
+        lo, hi = lo - 0.1, hi + np.array([0.1, 0.08, 0.1])  # holds hair_box's too
     if floor == "plate":
         reach = float(rng.uniform(0.08, 0.15))
         lo = np.minimum(lo, [lo[0] - reach, -0.012, lo[2] - reach])
@@ -349,8 +445,7 @@ def closed_mesh(
     sl, C = box(pocket.min(axis=0), pocket.max(axis=0))
     occ[sl] |= (Delaunay(pocket).find_simplex(C.reshape(-1, 3)) >= 0).reshape(C.shape[:3])
     if hair_in is not None:
-        head = V[tpl.part_mask("head")]
-        sl, C = box(head.min(axis=0) - 0.1, head.max(axis=0) + np.array([0.1, 0.08, 0.1]))
+        sl, C = box(*hair_box(V, info["hair"]))
         occ[sl] |= hair_in(C.reshape(-1, 3)).reshape(C.shape[:3])
     yy = axes[1][None, :, None]
     if floor == "cut":
@@ -455,9 +550,7 @@ def hair_mesh(
     from skimage.measure import marching_cubes  # dev dependency (BSD-3)
 
     inside, params = hair_volume(V, style, rng)
-    head = V[load_template().part_mask("head")]
-    lo = head.min(axis=0) - 0.1
-    hi = head.max(axis=0) + np.array([0.1, 0.08, 0.1])
+    lo, hi = hair_box(V, params)
     axes = [np.arange(lo[k], hi[k] + voxel_m, voxel_m) for k in range(3)]
     C = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
     occ = inside(C.reshape(-1, 3)).reshape(C.shape[:3]).astype(np.float64)
@@ -660,8 +753,9 @@ def make_case(
     The body and its posture depend on ``seed`` only (``closed_touching`` lowers the arms until
     they touch), so ``make_case(s, "closed_lowres")`` and ``make_case(s, "raw")`` show the same
     body. ``kind`` None draws one of :data:`KINDS` from the seed. ``hair`` (one of
-    :data:`HAIR_STYLES`, raw kinds only: raw, raw_inward, raw_clutter, cloud) scans the body
-    with that hair on its head (default None: the cases as they always were). ``voxel_m``
+    :data:`HAIR_STYLES` or :data:`EXTRA_HAIR_STYLES`; any kind but dense) puts that hair on the
+    head instead of the kind's own (none, or closed_hair's and closed_booth's drawn style;
+    default None: the cases as they always were). ``voxel_m``
     (closed kinds only): mesh on this grid (metres) instead of the kind's drawn one (e.g. 0.017:
     ~8 k vertices, where close feet fuse).
     """
@@ -671,12 +765,13 @@ def make_case(
         kind = kinds[int(np.random.default_rng([seed, 100]).integers(n_draw))]
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(sorted(kinds))}, got {kind!r}")
-    if hair is not None and (kind.startswith("closed") or kind == "dense"):
-        raise ValueError(f"hair= is for the raw kinds; {kind} has its own (closed_hair) or none")
+    if hair is not None and kind == "dense":
+        raise ValueError("hair= is not for the dense kind (points drawn on the true skin)")
     if voxel_m is not None and not (kind.startswith("closed") and 0.002 <= voxel_m <= 0.03):
         raise ValueError(f"voxel_m is for the closed kinds, 0.002-0.03 m; got {voxel_m} ({kind})")
-    if hair is not None and hair not in HAIR_STYLES:
-        raise ValueError(f"hair must be one of {HAIR_STYLES}, got {hair!r}")
+    if hair is not None and hair not in HAIR_STYLES + EXTRA_HAIR_STYLES:
+        raise ValueError(f"hair must be one of {HAIR_STYLES + EXTRA_HAIR_STYLES}, got {hair!r}")
+    hair_asked = hair
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
     body = off_model_body(np.random.default_rng([seed, 101]))
@@ -708,6 +803,8 @@ def make_case(
         hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
         if booth:
             hair = [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
+        if hair_asked is not None:  # drawn above all the same: the rest of the case is as always
+            hair = hair_asked
         floor = "plate" if kind == "closed_plate" or (booth and brng.random() < 0.2) else "cut"
         mitten = float(rng.uniform(0.010, 0.014))
         X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=mitten, hair=hair, floor=floor)
@@ -855,6 +952,7 @@ def palm_cases(n: int = 20, start: int = 600) -> list[tuple[int, str]]:
 
 
 __all__ = [
+    "EXTRA_HAIR_STYLES",
     "HAIR_STYLES",
     "KINDS",
     "PALM_KINDS",
@@ -866,6 +964,7 @@ __all__ = [
     "closed_mesh",
     "clutter",
     "file_transform",
+    "hair_box",
     "hair_mesh",
     "hair_volume",
     "heavy_cases",

@@ -167,8 +167,34 @@ def test_raw_scan_with_hair_sees_the_hair_not_the_scalp():
     assert np.linalg.norm(P - centre, axis=1).min() > 0.8 * r
     # without hair= the case is the one it always was (bench result files: 147,048 vertices)
     assert len(make_case(20, "raw").V) == 147_048
-    with pytest.raises(ValueError, match="raw kinds"):
-        make_case(20, "closed_lowres", hair="bun")
+    with pytest.raises(ValueError, match="dense"):
+        make_case(20, "dense", hair="bun")
+
+
+@pytest.mark.parametrize("kind", ["raw", "closed_lowres"])
+def test_long_hair_hangs_behind_the_neck_onto_the_back(kind):
+    """Loose shoulder-length hair (asked for by name, never drawn): a layer over the crown and a
+    curtain behind the neck reaching below the cervicale, nothing in front of the ears; the rest
+    of the body is untouched."""
+    c = make_case(3, kind, hair="long")
+    X, truth = _canonical(c)
+    tpl = load_template()
+    L = tpl.landmarks
+    d = MeshDistance(truth, tpl.F).distances(X)
+    part = np.asarray(tpl.part_names)[tpl.part[cKDTree(truth).query(X)[1]]]
+    far = d > 0.008
+    prm = c.params["output"]["hair"]
+    assert prm["style"] == "long" and "hair long" in c.description
+    cerv, trag = truth[L["Cervicale"]], 0.5 * (truth[L["Tragion_L"]] + truth[L["Tragion_R"]])
+    behind = far & (X[:, 2] < cerv[2] + 0.02)
+    assert (behind & (X[:, 1] < cerv[1] - 0.02)).sum() > 20  # down the back, below C7
+    assert (behind & (X[:, 1] > cerv[1]) & (X[:, 1] < trag[1])).sum() > 50  # over the nape
+    face = np.isin(part, ["head", "neck"]) & (X[:, 1] < trag[1]) & (X[:, 2] > trag[2] + 0.01)
+    assert (far & face).sum() == 0  # never over the face or the front of the neck
+    trunk = far & np.isin(part, ["head", "neck", "torso"])  # not the closed mesh's mittens
+    assert X[trunk, 1].min() > prm["long"]["bottom_m"] - 0.01
+    elsewhere = ~np.isin(part, ["head", "neck", "torso", "hand_L", "hand_R"])
+    assert (far & elsewhere).sum() < 0.002 * elsewhere.sum()
 
 
 def test_raw_inward_arms_are_wound_inward():
