@@ -24,14 +24,10 @@ How (:func:`find_hair`, called by ``core.matching.markerless`` on its first body
   has no data and comes from the body prior, as the paper takes badly scanned regions from the
   template.
 
-A layer of hair over the whole scalp (the generator's ``cap``, 10-30 mm; loose long hair, its
-``long``) is not removed: the first body grows into it, so it stands off by less than
-:data:`HAIR_THICK_M` and is fitted as skull (stature +4..+36 mm). It is *reported*
-(:func:`scalp_layer`): a body fitted without the scalp's data has its skull from the face, the
-neck and the body prior, and where the scan's scalp stands far off that skull the report warns
-that the head and stature may include hair. The skull the face predicts is too uncertain to fit
-to instead (on hairless off-model heads it came out up to 29 mm low at the vertex). And a first
-body whose head is misplaced
+Not handled: an even layer of hair over the whole scalp (the generator's ``cap``, 10-30 mm):
+the first body grows into it, so it stands off by less than :data:`HAIR_THICK_M` and is fitted
+as skull (stature +4..+26 mm on closed_hair seeds 13, 49, 37); no cue tells it from a larger
+skull without a model of the skull under the hair. And a first body whose head is misplaced
 beside a ponytail (raw-4 with a ponytail: the search's head 78 mm off, with or without this
 step) has real head points joined to the ponytail's cluster (463 of 3,039): they are left out
 with it, and the verdict, over the kept points, no longer sees them.
@@ -137,57 +133,6 @@ def signed_offsets(
         d[far] = MeshDistance(X, F, k=4).distances(P[far])
     side = np.einsum("kc,kc->k", P - X[nn], N[nn])
     return np.where(side >= 0, d, -d), nn
-
-
-#: Over the scalp, the median offset (metres) of the scan's points from a body fitted without
-#: the scalp's data above which the report warns of a layer of hair: 26 hairless heads of
-#: ``core.synth.scanner_outputs`` (raw and closed_lowres seeds 1-21, closed_booth 301, 304) stood
-#: -1-12 mm off (median 5), 13 under a cap or loose long hair 14-37 mm (median 22; their fits'
-#: stature +14..+36 mm); ``bench/README.md``, stop 44.
-HAIR_LAYER_MEDIAN_M = 0.013
-
-
-@dataclass
-class HairLayer:
-    """What :func:`scalp_layer` measured: ``standoff_m``, the median offset (metres) of the scan's
-    scalp points from a body fitted without them; ``top_drop_m``, how much lower (metres) that
-    body's head top is than the fit's with them; ``points``, the scalp points it counted."""
-
-    standoff_m: float
-    top_drop_m: float
-    points: int
-
-    @property
-    def likely(self) -> bool:
-        """A layer of hair over the scalp is likely (:data:`HAIR_LAYER_MEDIAN_M`)."""
-        return self.standoff_m > HAIR_LAYER_MEDIAN_M
-
-    def warning(self) -> str:
-        return (
-            f"a layer of hair over the scalp is likely (a cap of hair, or loose hair): the scan's "
-            f"scalp stands a median {self.standoff_m * 1000:.0f} mm off the skull that the face "
-            f"and neck predict, and it was fitted as skull; stature, the head's measurements and "
-            f"its landmarks may include the hair (a fit without the scalp's data put the top of "
-            f"the head {self.top_drop_m * 1000:.0f} mm lower)"
-        )
-
-
-def scalp_layer(P: np.ndarray, without_scalp: np.ndarray, with_scalp: np.ndarray) -> HairLayer:
-    """Scan points P (n, 3; metres, +Y up; hair volumes already left out) over the scalp against
-    a body ``without_scalp`` (13380, 3) fitted without the scalp's data (:func:`scalp_mask`) and
-    the body ``with_scalp`` fitted to all of them: their :class:`HairLayer`."""
-    tpl = load_template()
-    F = np.asarray(tpl.F, dtype=np.int64)
-    head = tpl.part_mask("head")
-    near = np.flatnonzero(
-        np.linalg.norm(P - without_scalp[head].mean(axis=0), axis=1) < HAIR_RADIUS_M
-    )
-    off, nn = signed_offsets(P[near], without_scalp, F, exact_beyond=HAIR_OUT_M)
-    on = scalp_mask()[nn]
-    top = float(with_scalp[head, 1].max() - without_scalp[head, 1].max())
-    if not on.any():
-        return HairLayer(0.0, top, 0)
-    return HairLayer(float(np.median(off[on])), top, int(on.sum()))
 
 
 def _cluster_limits(P: np.ndarray) -> tuple[float, int]:

@@ -21,13 +21,7 @@ from core.errors import FitError
 from core.geometry import area_samples
 from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
-from core.matching.hair import (
-    HAIR_LAYER_MEDIAN_M,
-    HairLayer,
-    find_hair,
-    scalp_layer,
-    scalp_mask,
-)
+from core.matching.hair import find_hair
 from core.registration.correspondence import ScanIndex, turn_normals_against_body
 from core.registration.fit import (
     HAND_LENGTH_NOTE,
@@ -912,8 +906,6 @@ def fit_markerless(
     hair = find_hair(scan, res.vertices) if rounds else None
     # one KD-tree for every round (and its retry): the scan's, or that of the scan without hair
     round_index = index if hair is None or hair.scan is scan else ScanIndex(hair.scan)
-    # a layer of hair over the scalp (a cap of hair, loose hair): reported, not removed
-    layer = scalp_hair_layer(hair.scan, res, round_index, options) if hair is not None else None
     fists = fisted_hands(round_index, res.vertices) if rounds else ""
     # a hand resting on the torso or thigh (fused to it in a closed mesh): the scan cannot tell
     # hand from thigh, and the thigh's data and the first fit's hand landmarks (where its
@@ -990,14 +982,6 @@ def fit_markerless(
         )  # fmt: skip
     if hair is not None and hair.count:
         res.report.warnings.append(hair.warning())
-    if layer is not None:
-        res.report.notes.append(
-            f"scalp against a skull fitted without its data: a median {layer.standoff_m * 1000:.1f}"
-            f" mm off over {layer.points:,} scan points (a layer of hair is reported above "
-            f"{HAIR_LAYER_MEDIAN_M * 1000:.0f} mm)"
-        )
-        if layer.likely:
-            res.report.warnings.append(layer.warning())
     if resting:
         notes.append(
             f"hands resting on the body ({', '.join(resting)}): placed by the arms' data and the "
@@ -1086,40 +1070,6 @@ def scan_floor(scan: Scan) -> float:
     """Height (metres, +Y up) the fitted body may not go below: the scan's lowest points (0.05th
     percentile of the heights) less :data:`FLOOR_GAP_M`."""
     return float(np.percentile(np.asarray(scan.V)[:, 1], 0.05)) - FLOOR_GAP_M
-
-
-#: Landmarks the fit without the scalp's data (:func:`scalp_hair_layer`) does not take from the
-#: first body: those on the scalp (under a layer of hair they sit on the hair).
-SCALP_LANDMARKS = ("Vertex", "Opisthocranion", "Cervicale")
-
-
-def scalp_hair_layer(
-    scan: Scan, res: FitResult, index: ScanIndex, options: dict[str, Any]
-) -> HairLayer | None:
-    """A layer of hair over the scalp (``core.matching.hair.scalp_layer``) of ``scan`` (hair
-    volumes already left out; ``index`` its KD-tree): the first body ``res`` fitted again (its
-    body prior only, from its pose and shape, its landmarks but the scalp's as soft markers)
-    without the data of the scalp's vertices, and the scan's scalp points measured against it."""
-    prior = res.body_prior
-    if prior is None:
-        return None
-    sm = scalp_mask()
-    marks = {
-        k: v
-        for k, v in predicted_landmarks(res.vertices).items()
-        if k not in SCALP_LANDMARKS and not sm[load_template().landmarks[k]]
-    }
-    probe = fit(
-        scan, marks, schedule=Schedule(()), retry=False, index=index, assess=False,
-        soft_markers=True, vertex_weights=(~sm).astype(np.float64),
-        initial_similarity=prior.similarity, prior_options={
-            "initial_pose": prior.pose, "initial_coefficients": prior.coefficients,
-            "iterations": RESTART_ITERATIONS, "shape_prior_weight": ROUND_SHAPE_PRIOR,
-            "bone_prior": ROUND_BONE_PRIOR, "limb_prior": LIMB_PRIOR,
-        },
-        **options,
-    )  # fmt: skip
-    return scalp_layer(np.asarray(scan.V, np.float64), probe.vertices, res.vertices)
 
 
 def predicted_landmarks(V: np.ndarray) -> dict[str, np.ndarray]:

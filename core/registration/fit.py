@@ -335,7 +335,6 @@ def iter_fit(
     assess: bool = True,
     prior_restart: PriorRestart | None = None,
     soft_markers: bool = False,
-    vertex_weights: np.ndarray | None = None,
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -363,9 +362,6 @@ def iter_fit(
         for markers that agree with their neighbours, 0 for the others); a retry sets 1.
     part_weights : quality part name (``core.registration.quality.PARTS``) -> multiplier of
         that part's data weight in the body prior (a retry raises a lost part's).
-    vertex_weights : (13380,) multiplier of each template vertex's data weight in the body prior,
-        times ``part_weights`` (0 over the scalp: a skull placed by the face and neck alone,
-        ``core.matching.hair``).
     index : the scan's KD-tree index (``ScanIndex(scan, confidence_full_at=...)``) when the
         caller fits the same scan several times (markerless rounds, retries); built otherwise.
     assess : measure the result (scan→fit distances, per-part quality check). False for an
@@ -408,7 +404,6 @@ def iter_fit(
         shape_prior=shape_prior, max_distance=max_distance,
         marker_outlier_distance=marker_outlier_distance, prior_options=prior_options,
         marker_trust=marker_trust, part_weights=part_weights, prior_restart=prior_restart,
-        vertex_weights=vertex_weights,
     )  # fmt: skip
     frame = SolverFrame.of(body, unit_scale)
     marker_pos = frame.to_solver(
@@ -569,7 +564,6 @@ def initial_body(
     marker_trust: float | None,
     part_weights: dict[str, float] | None,
     prior_restart: PriorRestart | None = None,
-    vertex_weights: np.ndarray | None = None,
 ) -> InitialBody:
     """Initial body: the body prior (``fit_body_prior``: shape, pose, similarity) with annealed
     robust marker weights, floored for markers their neighbours agree with; or the template."""
@@ -582,10 +576,10 @@ def initial_body(
     floor = np.array([CONSISTENT_WEIGHT_FLOOR * consistent.get(k, False) for k in align.used])
     if marker_trust is not None:
         floor = np.full(len(align.used), float(marker_trust))
-    vw = None if vertex_weights is None else np.array(vertex_weights, dtype=np.float64)
+    vw = None
     if part_weights:
         labels, pnames = part_labels(tpl)
-        vw = np.ones(tpl.n_vertices) if vw is None else vw
+        vw = np.ones(tpl.n_vertices)
         for pname, f in part_weights.items():
             vw[labels == pnames.index(pname)] = float(f)
     po = PriorOptions.of(prior_options)
@@ -963,7 +957,6 @@ def fit(
     retries: tuple[tuple[str, dict[str, Any]], ...] = RETRIES,
     prior_restart: PriorRestart | None = None,
     soft_markers: bool = False,
-    vertex_weights: np.ndarray | None = None,
 ) -> FitResult:
     """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
@@ -992,7 +985,6 @@ def fit(
         "initial_similarity": initial_similarity, "prior_options": prior_options,
         "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
         "prior_restart": prior_restart, "soft_markers": soft_markers,
-        "vertex_weights": vertex_weights,
     }  # fmt: skip
     options["index"] = scan_index(scan, index, confidence_full_at)  # shared by the retries
     res = _run(scan, markers, callback, options)
