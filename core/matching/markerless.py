@@ -21,7 +21,7 @@ from core.errors import FitError
 from core.geometry import area_samples
 from core.io.frame import turn_over
 from core.matching.body_check import check_body_shape
-from core.matching.hair import find_hair
+from core.matching.hair import FLAT_HAIR_NOTE, find_hair
 from core.registration.correspondence import ScanIndex, turn_normals_against_body
 from core.registration.fit import (
     HAND_LENGTH_NOTE,
@@ -982,6 +982,8 @@ def fit_markerless(
         )  # fmt: skip
     if hair is not None and hair.count:
         res.report.warnings.append(hair.warning())
+    if rounds:
+        notes.append(FLAT_HAIR_NOTE)
     if resting:
         notes.append(
             f"hands resting on the body ({', '.join(resting)}): placed by the arms' data and the "
