@@ -218,3 +218,13 @@ def test_part_corr_lines_average_and_share_by_vertex_count():
     assert f"head 15.0 ({share:.0f} %)" in line
     assert "torso 2.0 (" in line
     assert part_corr_lines([{"seed": 1}]) == []
+
+
+def test_hair_option_names_the_styles_it_takes(capsys):
+    from bench.realworld import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--hair", "curly", "--cases", "1", "--no-save"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--hair: one of" in err and "long" in err and "ponytail" in err
