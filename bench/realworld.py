@@ -658,7 +658,7 @@ def main(argv: list[str] | None = None) -> int:
         "--hair",
         default=None,
         help="put this hair style on every case's head instead of its own (one of "
-        "core.synth.scanner_outputs' HAIR_STYLES or EXTRA_HAIR_STYLES, e.g. long: loose hair "
+        "core.synth.scanner_outputs' ALL_HAIR_STYLES, e.g. long: loose hair "
         "to the shoulders); not for the dense kind, whose cases are left out",
     )
     ap.add_argument("--no-save", action="store_true", help="do not write bench/results")
@@ -674,8 +674,7 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.suppress(OSError):
         os.nice(max(0, 10 - os.nice(0)))  # niceness 10 in all, also when started with nice
     from core.synth.scanner_outputs import (
-        EXTRA_HAIR_STYLES,
-        HAIR_STYLES,
+        ALL_HAIR_STYLES,
         KINDS,
         benchmark_cases,
         booth_cases,
@@ -703,8 +702,8 @@ def main(argv: list[str] | None = None) -> int:
         seeds = {int(x) for x in args.seeds.split(",")}
         cases = [c for c in cases if c[0] in seeds]
     if args.hair is not None:
-        if args.hair not in HAIR_STYLES + EXTRA_HAIR_STYLES:
-            ap.error(f"--hair: one of {', '.join(HAIR_STYLES + EXTRA_HAIR_STYLES)}")
+        if args.hair not in ALL_HAIR_STYLES:
+            ap.error(f"--hair: one of {', '.join(ALL_HAIR_STYLES)}")
         cases = [c for c in cases if c[1] != "dense"]
     todo = [(s, k, args.markers, args.hair) for s, k in cases]
     t0 = time.perf_counter()

@@ -78,6 +78,8 @@ HAIR_STYLES = ("bun", "ponytail", "cap", "cap+bun")
 #: Hair styles made only when asked for by name (``make_case(hair=)``): never drawn, so adding
 #: them left every drawn case as it was.
 EXTRA_HAIR_STYLES = ("long",)
+#: Every hair style :func:`hair_volume` and ``make_case(hair=)`` take.
+ALL_HAIR_STYLES = HAIR_STYLES + EXTRA_HAIR_STYLES
 
 #: Case kinds: family name -> what it is.
 KINDS = {
@@ -225,9 +227,7 @@ def hair_volume(V: np.ndarray, style: str, rng: np.random.Generator):
         long_test, params["long"] = _long_hair(V, rng)
         tests.append(long_test)
     if not tests:
-        raise ValueError(
-            f"hair style must be one of {HAIR_STYLES + EXTRA_HAIR_STYLES}, got {style!r}"
-        )
+        raise ValueError(f"hair style must be one of {ALL_HAIR_STYLES}, got {style!r}")
     params["top_m"] = float(top[1])
 
     def inside(P: np.ndarray) -> np.ndarray:
@@ -769,8 +769,8 @@ def make_case(
         raise ValueError("hair= is not for the dense kind (points drawn on the true skin)")
     if voxel_m is not None and not (kind.startswith("closed") and 0.002 <= voxel_m <= 0.03):
         raise ValueError(f"voxel_m is for the closed kinds, 0.002-0.03 m; got {voxel_m} ({kind})")
-    if hair is not None and hair not in HAIR_STYLES + EXTRA_HAIR_STYLES:
-        raise ValueError(f"hair must be one of {HAIR_STYLES + EXTRA_HAIR_STYLES}, got {hair!r}")
+    if hair is not None and hair not in ALL_HAIR_STYLES:
+        raise ValueError(f"hair must be one of {ALL_HAIR_STYLES}, got {hair!r}")
     hair_asked = hair
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
@@ -952,6 +952,7 @@ def palm_cases(n: int = 20, start: int = 600) -> list[tuple[int, str]]:
 
 
 __all__ = [
+    "ALL_HAIR_STYLES",
     "EXTRA_HAIR_STYLES",
     "HAIR_STYLES",
     "KINDS",

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from bench.cases import make_case
-from core.matching.hair import find_hair, signed_offsets
+from core.matching.hair import FLAT_HAIR_NOTE, find_hair, signed_offsets
 from core.scan import Scan
 from core.template import load_template
 
@@ -75,8 +75,6 @@ def test_bun_adds_no_height_to_a_markerless_fit(case):
     assert corr < 0.005, corr * 1000
     warn = [w for w in res.report.warnings if w.startswith("hair volume on the head ignored")]
     assert len(warn) == 1, res.report.warnings
-    from core.matching.hair import FLAT_HAIR_NOTE
-
     assert FLAT_HAIR_NOTE in res.report.notes  # hair lying on the scalp is not found: said
     n_hair = res.report.removed["hair_points"]
     assert 0.8 * n_bun < n_hair <= n_bun + 20, (n_hair, n_bun)  # the bun, little else
