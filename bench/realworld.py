@@ -22,7 +22,7 @@ vertices, and without the hands, which a closed mesh turns into mittens). Result
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers]
-[--heavy | --booth | --wide | --palms] [--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
+[--heavy | --booth | --wide | --palms | --decimated] [--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -296,7 +296,8 @@ def _run(args: tuple) -> dict[str, Any]:
 
 
 def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """closed_lowres vs raw (closed_palms vs raw_palms) fits of the same body (mm): mean vertex
+    """closed_lowres vs raw (closed_palms vs raw_palms, closed_decimated vs raw) fits of the same
+    body (mm): mean vertex
     distance, all / no hands / per quality part, split into its components across
     (``normal_mm``) and along (``tangential_mm``) the surface, and the two fitted surfaces'
     distance whatever the correspondence (``surface_mm``: area samples of each to the other's
@@ -315,7 +316,9 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     by = {(r["seed"], r["kind"]): r for r in rows}
     out = []
     for (seed, kind), r in sorted(by.items()):
-        twin = {"closed_lowres": "raw", "closed_palms": "raw_palms"}.get(kind)
+        twin = {"closed_lowres": "raw", "closed_palms": "raw_palms", "closed_decimated": "raw"}.get(
+            kind
+        )
         if twin is None or (seed, twin) not in by:
             continue
         s = by[(seed, twin)]
@@ -655,6 +658,12 @@ def main(argv: list[str] | None = None) -> int:
         "raw_palms twins) instead of the varied set",
     )
     ap.add_argument(
+        "--decimated",
+        action="store_true",
+        help="--cases bodies as closed meshes decimated to 10-20 k vertices (quadric edge "
+        "collapse of a 5-7 mm grid's mesh) and raw twins, instead of the varied set",
+    )
+    ap.add_argument(
         "--hair",
         default=None,
         help="put this hair style on every case's head instead of its own (one of "
@@ -678,14 +687,17 @@ def main(argv: list[str] | None = None) -> int:
         KINDS,
         benchmark_cases,
         booth_cases,
+        decimated_cases,
         heavy_cases,
         palm_cases,
         wide_cases,
     )
 
-    if args.heavy + args.booth + args.wide + args.palms > 1:
-        ap.error("--heavy, --booth, --wide and --palms are different sets: choose one")
-    if args.palms:
+    if args.heavy + args.booth + args.wide + args.palms + args.decimated > 1:
+        ap.error("--heavy, --booth, --wide, --palms and --decimated are different sets: choose one")
+    if args.decimated:
+        cases = decimated_cases(args.cases)
+    elif args.palms:
         cases = palm_cases(args.cases)
     elif args.booth:
         cases = booth_cases(args.cases)
@@ -718,7 +730,7 @@ def main(argv: list[str] | None = None) -> int:
     stem = (
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
-        f"{'-palms' if args.palms else ''}"
+        f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )
@@ -736,7 +748,7 @@ def main(argv: list[str] | None = None) -> int:
 
             clean = {k: v for k, v in r.items() if not k.startswith("_")}
             lines = [clean]
-            if r["kind"] in ("closed_lowres", "raw"):  # a finished twin pair: its agreement
+            if r["kind"] in ("closed_lowres", "raw", "closed_decimated"):  # a finished twin pair
                 lines += [{"twin": t} for t in twins(rows) if t["seed"] == r["seed"]]
             with partial.open("a") as fh:
                 for x in lines:

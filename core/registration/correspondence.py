@@ -22,6 +22,21 @@ from core.threads import KD_WORKERS
 #: 7.86-8.00 s with 16; the search's queries alone 0.36 vs 0.52 s (64: 0.30 s, but slower on
 #: the refinement's near ones).
 KD_LEAFSIZE = 32
+#: A mesh whose vertices' nearest-neighbour distances spread less than this (90th over 10th
+#: percentile) had them placed by software on a finer surface (decimated by edge collapse,
+#: remeshed): its sampling is not its detail (:attr:`ScanIndex.resolution_m`). Marching cubes
+#: on a grid spreads them 5-9 (its vertices on the grid's edges), raw range scans and clouds
+#: about 5, uniform random samples 3; ``core.synth.scanner_outputs``' decimated meshes 1.5-2.5
+#: (and a big scan after ``core.io.prepare.decimate_voxel_grid``'s 4 mm clustering 2.0, but at
+#: 2.5 mm, finer than :data:`EVEN_MESH_RESOLUTION_M`: unchanged).
+EVEN_SPREAD_MAX = 3.5
+#: The detail (metres) taken for such an evenly spread mesh sampled coarser than it. On the truths
+#: of ``core.synth.scanner_outputs``' decimated meshes (16 bodies from 5 and 7 mm grids, 12-20 k
+#: vertices, sampling 7-8 mm) the scanned toes end 1-8 mm short of the truth's (mean 4.4: the
+#: toe allowance's at 3.25 mm) and the mittens 0-3 (mean 1.3: the fingertip allowance's floor),
+#: not the 14.6 and 9.5 mm that their sampling gave (``foot_end.toe_allowance``,
+#: ``hand_length.tip_allowance``); 3 mm: toes 0.5 mm short on average, hands 2.3 long.
+EVEN_MESH_RESOLUTION_M = 0.003
 #: Scan confidence at which a point's data weight reaches 1 (the paper's 0.2).
 CONFIDENCE_FULL_AT = 0.2
 
@@ -65,18 +80,43 @@ class ScanIndex:
         self.tree = cKDTree(self.points, leafsize=KD_LEAFSIZE)
 
     @cached_property
+    def _neighbour_distances(self) -> np.ndarray:
+        """(≤ 3000,) distances (metres) from a fixed sample of points to their nearest
+        neighbours."""
+        n = len(self.points)
+        if n < 2:
+            return np.zeros(1)
+        rng = np.random.default_rng(0)
+        sample = self.points[rng.choice(n, min(3000, n), replace=False)]
+        d, _ = self.tree.query(sample, k=2, workers=KD_WORKERS)
+        return d[:, 1]
+
+    @cached_property
     def spacing_m(self) -> float:
         """The scan's sampling: median distance (metres) from a point to its nearest neighbour,
         over up to 3000 points (a fixed sample). Raw multi-view scans read 1.7 mm, closed meshes
         of 60-100 k vertices 2.7-2.9, booth meshes of 10-20 k vertices 4.9-7.3
         (``core.synth.scanner_outputs``)."""
-        n = len(self.points)
-        if n < 2:
-            return 0.0
-        rng = np.random.default_rng(0)
-        sample = self.points[rng.choice(n, min(3000, n), replace=False)]
-        d, _ = self.tree.query(sample, k=2, workers=KD_WORKERS)
-        return float(np.median(d[:, 1]))
+        return float(np.median(self._neighbour_distances))
+
+    @cached_property
+    def evenly_spread(self) -> bool:
+        """Whether the scan is a mesh whose vertices software spread evenly over a finer
+        surface (nearest-neighbour distances' 90th / 10th percentile below
+        :data:`EVEN_SPREAD_MAX`: decimated or remeshed)."""
+        if self.scan.F is None or len(self.scan.F) == 0 or len(self.points) < 100:
+            return False
+        p10, p90 = np.percentile(self._neighbour_distances, [10, 90])
+        return bool(p90 < EVEN_SPREAD_MAX * p10)
+
+    @cached_property
+    def resolution_m(self) -> float:
+        """The detail the scan's surface holds (metres), which rounds off fingertips and toes:
+        its sampling (:attr:`spacing_m`), but at most :data:`EVEN_MESH_RESOLUTION_M` on an
+        :attr:`evenly_spread` mesh (a decimated mesh's 8 mm sampling is not its detail)."""
+        if self.evenly_spread:
+            return min(self.spacing_m, EVEN_MESH_RESOLUTION_M)
+        return self.spacing_m
 
     @cached_property
     def closing_radius_m(self) -> float:

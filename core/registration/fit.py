@@ -203,7 +203,8 @@ def template_operators(
     return ops
 
 
-#: a scan sampled finer than this (``ScanIndex.spacing_m``, metres) shows the toes: they take
+#: a scan whose detail is finer than this (``ScanIndex.resolution_m``, metres: its sampling, at
+#: most 3 mm on a decimated mesh) shows the toes: they take
 #: data (:func:`fit_data_mask`; in the body prior, and in a refinement without one: after it
 #: they are in :func:`sole_band`). Raw multi-view scans read 1.7 mm, closed meshes of 60-100 k
 #: vertices 2.7-2.9; booth meshes of 10-20 k vertices (4.9-7.3) fuse and round the toes off
@@ -248,9 +249,9 @@ NORMAL_LINE_MAX_OFFSET_M = 0.01
 
 
 def toes_take_data(index: ScanIndex) -> bool:
-    """Whether the scan is sampled finely enough to show the toes
+    """Whether the scan's surface is detailed enough to show the toes
     (:data:`TOE_DATA_MAX_SPACING_M`)."""
-    return index.spacing_m < TOE_DATA_MAX_SPACING_M
+    return index.resolution_m < TOE_DATA_MAX_SPACING_M
 
 
 def closed_mesh_note(radius_m: float, bridged: int) -> str:

@@ -40,7 +40,8 @@ FOOT_CORRECTION_LIMITS = (-0.12, 0.08)
 #: border with the shin) reaches 0.42 of the template's foot, and stays put
 FOREFOOT_FROM = 0.45
 #: the toe tip lies ``TOE_TIP_PER_SPACING × (spacing − TOE_TIP_SPACING_OFFSET_M)`` past the
-#: scanned foot's end (:func:`toe_allowance`; ``ScanIndex.spacing_m``). On the truths of
+#: scanned foot's end (:func:`toe_allowance`; ``ScanIndex.resolution_m``: the sampling, but at
+#: most 3 mm on a decimated mesh). On the truths of
 #: ``bench.realworld``'s cases (diagnostic, 31 cases, both feet) the scanned end fell short of the
 #: toe tip by 1.0 mm on raw scans and clouds (sampling 1.6-1.7 mm), 1.4 on a dense one (2.4),
 #: 3.6 on closed meshes of 50-85 k vertices (2.7-3.0), 8.5 on closed meshes of 14-25 k
@@ -84,7 +85,7 @@ def toe_allowance(index: ScanIndex) -> float:
     """Metres the toe tip lies past the scanned foot's end on this scan
     (:data:`TOE_TIP_PER_SPACING`), within :data:`TOE_ALLOWANCE_RANGE_M`."""
     lo, hi = TOE_ALLOWANCE_RANGE_M
-    excess = index.spacing_m - TOE_TIP_SPACING_OFFSET_M
+    excess = index.resolution_m - TOE_TIP_SPACING_OFFSET_M
     return float(np.clip(TOE_TIP_PER_SPACING * excess, lo, hi))
 
 

@@ -43,7 +43,8 @@ FREE_HAND_GAP_M = 0.02
 #: fists end 28-48 mm past a fist's own wrist → fingertip length, 71-105 mm, of open hands'
 #: 164-215 mm); closed booth meshes' open hands fitted 1.17-1.19× long needed 0.77-0.8
 HAND_SCALE_LIMITS = (0.75, 1.10)
-#: the middle fingertip lies this many times the scan's sampling (``ScanIndex.spacing_m``) past
+#: the middle fingertip lies this many times the scan's detail (``ScanIndex.resolution_m``: its
+#: sampling, but at most 3 mm on a decimated mesh) past
 #: the scanned hand's end (:func:`tip_allowance`). On the truths of ``bench.realworld``'s open
 #: hands clear of the body (diagnostic script, 39 hands) the scanned end fell short of the
 #: fingertip by 2.1 mm on raw scans (sampling 1.7 mm), 1.9 on dense ones (2.4), 7.0 on closed
@@ -101,9 +102,10 @@ def _wrist_axis(X: np.ndarray, side: str, tpl: Template) -> tuple[np.ndarray, np
 
 def tip_allowance(index: ScanIndex) -> float:
     """Metres the middle fingertip lies past the scanned hand's end on this scan:
-    :data:`TIP_PER_SPACING` times its sampling, within :data:`TIP_ALLOWANCE_RANGE_M`."""
+    :data:`TIP_PER_SPACING` times its detail (``ScanIndex.resolution_m``), within
+    :data:`TIP_ALLOWANCE_RANGE_M`."""
     lo, hi = TIP_ALLOWANCE_RANGE_M
-    return float(np.clip(TIP_PER_SPACING * index.spacing_m, lo, hi))
+    return float(np.clip(TIP_PER_SPACING * index.resolution_m, lo, hi))
 
 
 @dataclass

@@ -20,6 +20,14 @@ Decisions
   largest component is kept (scanner software does), the winding is outward. Voxel 5–7 mm → 40–90 k
   vertices; 10–14 mm → the 8–20 k of decimated booth-scanner meshes. Every edge is shared by exactly
   two faces (tested).
+- **Decimated meshes** (``closed_decimated``, :func:`decimated_cases`): what most scanner
+  software writes at 10-20 k vertices: a fine closed mesh (5-7 mm grid, as above) decimated by
+  quadric edge collapse (:func:`decimate`, fast-simplification, MIT) to a drawn 10-20 k vertices:
+  the vertices stay on the fine surface, few on the flat torso (edges to 25 mm), many where it
+  bends, spread evenly (nearest-neighbour distances' 90th/10th percentile 1.5-2.5 against
+  marching cubes' 5-9). Its sampling (8 mm) says nothing of its detail: its fingertips and toes lie
+  0-3 and 1-8 mm short of the truth's, a 12 mm grid's 4-14 and 5-10. mm, +Y up, floor 0, flat
+  cut soles. Only in :func:`decimated_cases` (seeds 700 on), each with a ``raw`` twin.
 - **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
   opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
   back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``; and,
@@ -99,6 +107,8 @@ KINDS = {
     "cloud_wide": "point cloud of a raw scan, no normals, arms 60-90° from the body",
     "raw_palms": "raw multi-view range scan, palms turned 45-100° forwards or backwards",
     "closed_palms": "closed hole-filled mesh, 8-20 k vertices, palms turned 45-100°",
+    "closed_decimated": "closed mesh decimated by quadric edge collapse to 10-20 k vertices "
+    "(from a 5-7 mm grid), mm, +Y up",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -113,7 +123,7 @@ PALM_KINDS = {"raw_palms": "raw", "closed_palms": "closed_lowres"}
 _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
-    "raw_palms", "closed_palms",
+    "raw_palms", "closed_palms", "closed_decimated",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -331,6 +341,37 @@ def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
     _, lab = connected_components(G, directed=False)
     big = np.argmax(np.bincount(lab[F[:, 0]]))
     return F[lab[F[:, 0]] == big]
+
+
+def decimate(V: np.ndarray, F: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Quadric edge-collapse decimation (fast-simplification, MIT; a dev dependency) of a closed
+    mesh to about ``n_vertices`` vertices, as scanner software decimates its output.
+
+    V (n, 3) metres, F (m, 3) outward-wound triangles → (V', F'): the largest component, unused
+    vertices and doubled triangles dropped, wound outward; every edge in exactly two faces when
+    the input's were (tested on the cases).
+    """
+    import fast_simplification
+
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F, np.int64)
+    if n_vertices >= len(V):
+        return V, F
+    Vd, Fd = fast_simplification.simplify(
+        V.astype(np.float32), F.astype(np.int32), target_reduction=1.0 - n_vertices / len(V)
+    )
+    Vd, Fd = np.asarray(Vd, np.float64), np.asarray(Fd, np.int64)
+    # a collapse now and then leaves a triangle twice (a fin over an edge shared by four faces):
+    # every copy goes, which leaves its edges to the two faces around them
+    _, inv, cnt = np.unique(np.sort(Fd, axis=1), axis=0, return_inverse=True, return_counts=True)
+    Fd = _largest_component(Fd[cnt[inv.ravel()] == 1], len(Vd))
+    used = np.unique(Fd)
+    remap = -np.ones(len(Vd), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    Vd, Fd = Vd[used], remap[Fd]
+    if mesh_volume(Vd, Fd) < 0:
+        Fd = Fd[:, [0, 2, 1]]
+    return Vd, Fd
 
 
 def mouth_pocket_mask(rings: int = 3) -> np.ndarray:
@@ -799,6 +840,7 @@ def make_case(
     if kind.startswith("closed"):
         lowres = kind in ("closed_lowres", "closed_booth")
         h = float(rng.uniform(0.010, 0.014) if lowres else rng.uniform(0.005, 0.007))
+        n_decimated = int(rng.uniform(10_000, 20_000)) if kind == "closed_decimated" else 0
         h = h if voxel_m is None else float(voxel_m)
         hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
         if booth:
@@ -814,6 +856,9 @@ def make_case(
                 h = float(np.clip(h * np.sqrt(len(X) / want), 0.008, 0.02))
                 X, F, out = closed_mesh(P, F_t, np.random.default_rng([seed, 106]), voxel_m=h,
                                         mitten_m=mitten, hair=hair, floor=floor)  # fmt: skip
+        if n_decimated:
+            out["fine_vertices"] = len(X)
+            X, F = decimate(X, F, n_decimated)
         P = P + np.array([0.0, out.get("floor_shift_m", 0.0), 0.0])  # the truth stands on a plate
         normals = vertex_normals(X, F) if rng.random() < 0.5 else None
     elif kind == "dense":
@@ -842,7 +887,7 @@ def make_case(
         elif kind == "cloud":
             F, normals = None, None
     # frame
-    if kind in ("closed_lowres", "closed_booth"):
+    if kind in ("closed_lowres", "closed_booth", "closed_decimated"):
         units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
     else:
         units = str(rng.choice(list(UNITS)))
@@ -892,7 +937,9 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
     base = [
-        k for k in sorted(KINDS) if k not in ("dense", "closed_booth", *WIDE_KINDS, *PALM_KINDS)
+        k
+        for k in sorted(KINDS)
+        if k not in ("dense", "closed_booth", "closed_decimated", *WIDE_KINDS, *PALM_KINDS)
     ]
     out: list[tuple[int, str]] = []
     seed = i = 0
@@ -951,6 +998,16 @@ def palm_cases(n: int = 20, start: int = 600) -> list[tuple[int, str]]:
     return out[:n]
 
 
+def decimated_cases(n: int = 16, start: int = 700) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
+    ``closed_decimated`` mesh (quadric edge collapse of a fine closed mesh to 10-20 k vertices)
+    and a ``raw`` twin."""
+    out: list[tuple[int, str]] = []
+    for seed in range(start, start + (n + 1) // 2):
+        out += [(seed, "closed_decimated"), (seed, "raw")]
+    return out[:n]
+
+
 __all__ = [
     "ALL_HAIR_STYLES",
     "EXTRA_HAIR_STYLES",
@@ -964,6 +1021,8 @@ __all__ = [
     "booth_cases",
     "closed_mesh",
     "clutter",
+    "decimate",
+    "decimated_cases",
     "file_transform",
     "hair_box",
     "hair_mesh",

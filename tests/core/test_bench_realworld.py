@@ -228,3 +228,18 @@ def test_hair_option_names_the_styles_it_takes(capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "--hair: one of" in err and "long" in err and "ponytail" in err
+
+
+def test_decimated_meshes_pair_with_their_raw_twins(capsys):
+    """A closed_decimated fit is compared with the raw fit of its body (``twins``), and
+    ``--decimated`` is a set of its own (not with another set)."""
+    from bench.realworld import main, twins
+
+    V = np.asarray(load_template().V, float)
+    rows = [{"seed": 700, "kind": "closed_decimated", "_fit_body": V},
+            {"seed": 700, "kind": "raw", "_fit_body": V + np.array([0.002, 0.0, 0.0])}]  # fmt: skip
+    (t,) = twins(rows)
+    assert t["seed"] == 700 and abs(t["mean_mm"] - 2.0) < 1e-6
+    with pytest.raises(SystemExit) as e:
+        main(["--decimated", "--booth", "--cases", "1", "--no-save"])
+    assert e.value.code == 2 and "--decimated are different sets" in capsys.readouterr().err

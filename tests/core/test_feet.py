@@ -29,13 +29,16 @@ def _long_feet(X: np.ndarray, extra_m: float) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("kind", ["closed_lowres", "raw"])
+@pytest.mark.parametrize("kind", ["closed_lowres", "raw", "closed_decimated"])
 def test_toe_tip_markers_go_where_the_scanned_feet_end(realworld_case, kind):
     """closed_lowres-16 / raw-16 (BMI 36; the closed mesh's fitted toes stood 13-26 mm past the
     truth's): on the true body with its feet 25 mm too long, the scanned feet's ends put the
     toe-tip markers within 2.5 mm of the truth's toe tips along the foot (the closed mesh rounds
     its toes off: its end lies 9 mm short, :func:`toe_allowance` takes it back), and the
-    markers' other coordinates stay the body's."""
+    markers' other coordinates stay the body's. The same body decimated from a fine mesh
+    (closed_decimated-16, sampled 8 mm, its surface a 5 mm grid's): within 3 mm (measured
+    -2.3 / -2.8); its sampling had put the markers 9 mm past the truth's toe tips (the
+    allowance now follows ``ScanIndex.resolution_m``)."""
     from core.registration.correspondence import ScanIndex
     from core.registration.foot_end import (
         scanned_foot_end,
@@ -61,7 +64,7 @@ def test_toe_tip_markers_go_where_the_scanned_feet_end(realworld_case, kind):
         m = toe_tip_marker(long_, x, ends[x], tip)
         along = (m - toe) @ ends[x].axis
         # measured -0.2/-0.1 closed, +0.5/+0.7 raw (the hand's allowance: -2.9/-2.8, +1.7/+1.9)
-        assert abs(along) < 0.0025, (x, along * 1000)
+        assert abs(along) < (0.003 if kind == "closed_decimated" else 0.0025), (x, along * 1000)
         # only along the axis: the other coordinates are the long foot's toe tip's
         off = m - long_[L[f"Toe_tip_{x}"]]
         assert np.linalg.norm(off - (off @ ends[x].axis) * ends[x].axis) < 1e-9

@@ -124,6 +124,47 @@ def test_a_heavy_bodys_open_hands_end_where_the_scan_does(realworld_case):
         assert res.report.quality.parts[f"hand_{s}"].hand_tip_gap_m < 0.015
 
 
+def test_an_evenly_spread_mesh_is_read_by_its_detail_not_its_sampling():
+    """A marching-cubes mesh (a sphere on a 12 mm grid: its vertices on the grid's edges, their
+    neighbour distances spread widely) is as detailed as its sampling; the same sphere meshed
+    on a 4 mm grid and decimated to an eighth of its vertices (sampled as coarsely, spread
+    evenly) holds a finer surface: ``resolution_m`` is at most ``EVEN_MESH_RESOLUTION_M``
+    there, and the fingertip's allowance follows it. Point clouds keep their sampling."""
+    pytest.importorskip("skimage")
+    pytest.importorskip("fast_simplification")
+    from skimage.measure import marching_cubes
+
+    from core.geometry import vertex_normals
+    from core.registration.correspondence import EVEN_MESH_RESOLUTION_M, ScanIndex
+    from core.registration.hand_length import TIP_PER_SPACING, tip_allowance
+    from core.scan import Scan
+    from core.synth.scanner_outputs import decimate
+
+    def sphere(h: float) -> tuple[np.ndarray, np.ndarray]:  # r 0.2 m, outward
+        g = np.arange(-0.25, 0.25 + h, h) + 0.137 * h
+        X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
+        V, F, _, _ = marching_cubes(np.sqrt(X**2 + Y**2 + Z**2) - 0.2, 0.0, spacing=(h, h, h))
+        return V + g[0], F[:, [0, 2, 1]].astype(np.int64)
+
+    def index(V: np.ndarray, F: np.ndarray | None) -> ScanIndex:
+        N = vertex_normals(V, F) if F is not None else V / np.linalg.norm(V, axis=1)[:, None]
+        ones = np.ones(len(V))
+        return ScanIndex(Scan(V=V, F=F, normals=N, confidence=ones, boundary=ones < 0))
+
+    coarse = index(*sphere(0.012))
+    Vf, Ff = sphere(0.004)
+    fine = index(Vf, Ff)
+    Vd, Fd = decimate(Vf, Ff, len(Vf) // 8)
+    dec = index(Vd, Fd)
+    assert not coarse.evenly_spread and coarse.resolution_m == coarse.spacing_m
+    assert not fine.evenly_spread and fine.resolution_m == fine.spacing_m < 0.004
+    assert dec.evenly_spread and dec.spacing_m > 0.006, dec.spacing_m  # as coarse as the 12 mm
+    assert dec.resolution_m == EVEN_MESH_RESOLUTION_M
+    assert abs(tip_allowance(dec) - TIP_PER_SPACING * EVEN_MESH_RESOLUTION_M) < 1e-12
+    cloud = index(Vd, None)  # the same points without faces: nothing says how they were made
+    assert not cloud.evenly_spread and cloud.resolution_m == cloud.spacing_m
+
+
 def test_tip_allowance_follows_the_scans_sampling():
     """The fingertip's allowance past the scanned hand's end scales with the scan's sampling
     (a coarse booth mesh rounds the mitten's tip off), within its bounds."""

@@ -28,6 +28,7 @@ from core.synth.scanner_outputs import (
     benchmark_cases,
     booth_cases,
     closed_mesh,
+    decimated_cases,
     heavy_cases,
     make_case,
     palm_cases,
@@ -304,7 +305,9 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     cases = benchmark_cases(40)
     assert len(cases) == 40 and len(set(cases)) == 40
     # booth and the wide-arms kinds: sets of their own
-    assert {k for _, k in cases} == set(KINDS) - {"closed_booth", *WIDE_KINDS, *PALM_KINDS}
+    assert {k for _, k in cases} == set(KINDS) - {
+        "closed_booth", "closed_decimated", *WIDE_KINDS, *PALM_KINDS,
+    }  # fmt: skip
 
 
 def test_voxel_m_is_for_closed_kinds_within_its_range():
@@ -332,6 +335,42 @@ def test_booth_meshes_are_issue_12s_closed_meshes():
     cases = booth_cases(40)
     assert len(set(cases)) == 40 and {k for _, k in cases} == {"closed_booth"}
     assert not {s for s, _ in cases} & {s for s, _ in benchmark_cases(40) + heavy_cases(20)}
+
+
+def _nn_spread(V: np.ndarray) -> tuple[float, float]:
+    """Median nearest-neighbour distance of V (its units) and the 90th / 10th percentile."""
+    d = cKDTree(V).query(V, k=2)[0][:, 1]
+    p10, p50, p90 = np.percentile(d, [10, 50, 90])
+    return float(p50), float(p90 / p10)
+
+
+def test_decimated_meshes_keep_the_fine_surface_with_few_even_vertices():
+    """closed_decimated: a fine closed mesh (5-7 mm grid) decimated to 10-20 k vertices, mm, +Y
+    up, watertight and outward; its vertices lie on the fine surface (within 1 mm of the skin,
+    median) and are spread evenly (a coarse grid's marching cubes: 5-9) with a coarse sampling.
+    A set of its own, each body with a raw twin, clear of the other sets' seeds."""
+    c = make_case(700, "closed_decimated")
+    assert c.units == "mm" and c.up == "+y" and c.F is not None
+    assert 10_000 <= len(c.V) <= 20_000, len(c.V)
+    assert c.params["output"]["fine_vertices"] > 4 * len(c.V)
+    und, dirc = _edge_uses(c.F)
+    assert np.all(und == 2) and np.all(dirc == 1)
+    assert mesh_volume(c.V, c.F) > 0
+    X, truth = _canonical(c)
+    tpl = load_template()
+    d = MeshDistance(truth, np.asarray(tpl.F, np.int64)).distances(X)
+    assert np.median(d) < 0.001, np.median(d)  # on the fine surface: within 1 mm of the skin
+    spacing, spread = _nn_spread(X)
+    assert spacing > 0.006 and spread < 3.0, (spacing, spread)
+    lowres_spacing, lowres_spread = _nn_spread(_canonical(make_case(0, "closed_lowres"))[0])
+    assert lowres_spread > 5.0 and lowres_spacing < spacing
+    cases = decimated_cases(16)
+    assert len(set(cases)) == 16 and {k for _, k in cases} == {"closed_decimated", "raw"}
+    assert not {s for s, _ in cases} & {
+        s for s, _ in benchmark_cases(40) + heavy_cases(20) + booth_cases(40) + wide_cases(24)
+        + palm_cases(20)
+    }  # fmt: skip
+    assert make_case(700, "raw").body_key == c.body_key
 
 
 def test_wide_arms_cases_are_t_pose_captures_in_any_frame():
