@@ -129,7 +129,8 @@ def test_an_evenly_spread_mesh_is_read_by_its_detail_not_its_sampling():
     neighbour distances spread widely) is as detailed as its sampling; the same sphere meshed
     on a 4 mm grid and decimated to an eighth of its vertices (sampled as coarsely, spread
     evenly) holds a finer surface: ``resolution_m`` is at most ``EVEN_MESH_RESOLUTION_M``
-    there, and the fingertip's allowance follows it. Point clouds keep their sampling."""
+    there, the fingertip's allowance follows it, and the report's note says so. Point clouds
+    keep their sampling."""
     pytest.importorskip("skimage")
     pytest.importorskip("fast_simplification")
     from skimage.measure import marching_cubes
@@ -163,6 +164,12 @@ def test_an_evenly_spread_mesh_is_read_by_its_detail_not_its_sampling():
     assert abs(tip_allowance(dec) - TIP_PER_SPACING * EVEN_MESH_RESOLUTION_M) < 1e-12
     cloud = index(Vd, None)  # the same points without faces: nothing says how they were made
     assert not cloud.evenly_spread and cloud.resolution_m == cloud.spacing_m
+    from core.registration.fit import even_mesh_note  # the report says how it was read
+
+    assert even_mesh_note(coarse) is None and even_mesh_note(cloud) is None
+    note = even_mesh_note(dec)
+    assert note is not None and "read as a 3 mm surface" in note, note
+    assert f"sampled every {dec.spacing_m * 1000:.1f} mm" in note
 
 
 def test_tip_allowance_follows_the_scans_sampling():
