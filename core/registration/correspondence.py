@@ -22,24 +22,29 @@ from core.threads import KD_WORKERS
 #: 7.86-8.00 s with 16; the search's queries alone 0.36 vs 0.52 s (64: 0.30 s, but slower on
 #: the refinement's near ones).
 KD_LEAFSIZE = 32
-#: A mesh whose vertices' nearest-neighbour distances spread less than this (90th over 10th
-#: percentile) had them placed by software on a finer surface (decimated by edge collapse,
-#: remeshed): its sampling is not its detail (:attr:`ScanIndex.resolution_m`). Marching cubes
-#: on a grid spreads them 5-9 (its vertices on the grid's edges), raw range scans and clouds
-#: about 5, uniform random samples 3; ``core.synth.scanner_outputs``' decimated meshes 1.5-2.5
-#: (and a big scan after ``core.io.prepare.decimate_voxel_grid``'s 4 mm clustering 2.0, but at
-#: 2.5 mm, finer than :data:`EVEN_MESH_RESOLUTION_M`: unchanged).
-EVEN_SPREAD_MAX = 3.5
-#: The detail (metres) taken for such an evenly spread mesh sampled coarser than it. On the truths
+#: A mesh decimated from a finer surface (quadric edge collapse: its vertices stay on that surface,
+#: few where it is flat, many where it bends) is read by its detail, not its sampling
+#: (:attr:`ScanIndex.decimated`, :attr:`ScanIndex.resolution_m`). It shows in two spreads over a
+#: fixed sample of vertices (90th over 10th percentile): of the distance to the nearest
+#: neighbour, below this (``core.synth.scanner_outputs``' decimated meshes 2.7-3.0; marching
+#: cubes 5-9, its vertices on the grid's edges; raw range scans 4.8-5.1; uniform random samples
+#: 3) ...
+DECIMATED_NEAREST_SPREAD_MAX = 3.5
+#: ... and of the mean distance to the 8 nearest, at least this: the density follows the
+#: surface's bends (decimated meshes 1.40-1.65; vertex clustering on a 8-12 mm grid, whose
+#: cell means shrink the ends like a coarse grid does, 1.19-1.25; marching cubes 1.36-1.40 and
+#: raw scans 1.25-1.31, both ruled out by the first spread). ``core.io.prepare.
+#: decimate_voxel_grid``'s 4 mm clustering of big scans reads 2.0 / below this: not decimated.
+DECIMATED_LOCAL_SPREAD_MIN = 1.32
+#: The detail (metres) taken for a decimated mesh sampled coarser than it. On the truths
 #: of ``core.synth.scanner_outputs``' decimated meshes (16 bodies from 5 and 7 mm grids, 12-20 k
 #: vertices, sampling 7-8 mm) the scanned toes end 1-8 mm short of the truth's (mean 4.4: the
 #: toe allowance's at 3.25 mm) and the mittens 0-3 (mean 1.3: the fingertip allowance's floor),
 #: not the 14.6 and 9.5 mm that their sampling gave (``foot_end.toe_allowance``,
 #: ``hand_length.tip_allowance``); 3 mm: toes 0.5 mm short on average, hands 2.3 long.
-#: Decimated to 5 k vertices they still end 1-7.5 mm short. A coarse mesh that software smoothed
-#: until its vertices spread evenly would be read as detailed too (its toes taking data, its ends
-#: allowed a few mm): no such mesh is in the test material.
-EVEN_MESH_RESOLUTION_M = 0.003
+#: Decimated to 5 k vertices they still end 1-7.5 mm short. Vertex clustering on a 10-12 mm grid
+#: leaves them 2-6 and 5-14 mm short: read by its sampling, as before.
+DECIMATED_RESOLUTION_M = 0.003
 #: Scan confidence at which a point's data weight reaches 1 (the paper's 0.2).
 CONFIDENCE_FULL_AT = 0.2
 
@@ -84,15 +89,15 @@ class ScanIndex:
 
     @cached_property
     def _neighbour_distances(self) -> np.ndarray:
-        """(≤ 3000,) distances (metres) from a fixed sample of points to their nearest
-        neighbours."""
+        """(≤ 3000, 8) distances (metres) from a fixed sample of points to their 8 nearest
+        neighbours (inf where the scan has fewer points)."""
         n = len(self.points)
         if n < 2:
-            return np.zeros(1)
+            return np.zeros((1, 8))
         rng = np.random.default_rng(0)
         sample = self.points[rng.choice(n, min(3000, n), replace=False)]
-        d, _ = self.tree.query(sample, k=2, workers=KD_WORKERS)
-        return d[:, 1]
+        d, _ = self.tree.query(sample, k=9, workers=KD_WORKERS)
+        return d[:, 1:]
 
     @cached_property
     def spacing_m(self) -> float:
@@ -100,25 +105,29 @@ class ScanIndex:
         over up to 3000 points (a fixed sample). Raw multi-view scans read 1.7 mm, closed meshes
         of 60-100 k vertices 2.7-2.9, booth meshes of 10-20 k vertices 4.9-7.3
         (``core.synth.scanner_outputs``)."""
-        return float(np.median(self._neighbour_distances))
+        return float(np.median(self._neighbour_distances[:, 0]))
 
     @cached_property
-    def evenly_spread(self) -> bool:
-        """Whether the scan is a mesh whose vertices software spread evenly over a finer
-        surface (nearest-neighbour distances' 90th / 10th percentile below
-        :data:`EVEN_SPREAD_MAX`: decimated or remeshed)."""
+    def decimated(self) -> bool:
+        """Whether the scan is a mesh decimated from a finer surface: its vertices evenly spread
+        (:data:`DECIMATED_NEAREST_SPREAD_MAX`) and denser where it bends
+        (:data:`DECIMATED_LOCAL_SPREAD_MIN`)."""
         if self.scan.F is None or len(self.scan.F) == 0 or len(self.points) < 100:
             return False
-        p10, p90 = np.percentile(self._neighbour_distances, [10, 90])
-        return bool(p90 < EVEN_SPREAD_MAX * p10)
+        d = self._neighbour_distances
+        p10, p90 = np.percentile(d[:, 0], [10, 90])
+        q10, q90 = np.percentile(d.mean(axis=1), [10, 90])
+        return bool(
+            p90 < DECIMATED_NEAREST_SPREAD_MAX * p10 and q90 >= DECIMATED_LOCAL_SPREAD_MIN * q10
+        )
 
     @cached_property
     def resolution_m(self) -> float:
         """The detail the scan's surface holds (metres), which rounds off fingertips and toes:
-        its sampling (:attr:`spacing_m`), but at most :data:`EVEN_MESH_RESOLUTION_M` on an
-        :attr:`evenly_spread` mesh (a decimated mesh's 8 mm sampling is not its detail)."""
-        if self.evenly_spread:
-            return min(self.spacing_m, EVEN_MESH_RESOLUTION_M)
+        its sampling (:attr:`spacing_m`), but at most :data:`DECIMATED_RESOLUTION_M` on a
+        :attr:`decimated` mesh (a decimated mesh's 8 mm sampling is not its detail)."""
+        if self.decimated:
+            return min(self.spacing_m, DECIMATED_RESOLUTION_M)
         return self.spacing_m
 
     @cached_property

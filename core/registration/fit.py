@@ -267,21 +267,21 @@ def closed_mesh_note(radius_m: float, bridged: int) -> str:
     )
 
 
-def even_mesh_note(index: ScanIndex) -> str | None:
+def decimated_mesh_note(index: ScanIndex) -> str | None:
     """The report's note on a mesh read by its detail rather than its sampling
-    (:attr:`ScanIndex.resolution_m`: an evenly spread mesh, decimated or remeshed by its
-    software), or None where the two are the same."""
+    (:attr:`ScanIndex.resolution_m`: a mesh decimated by its software from a finer surface), or
+    None where the two are the same."""
     from core.registration.foot_end import toe_allowance
     from core.registration.hand_length import tip_allowance
 
-    if not index.evenly_spread or index.resolution_m >= index.spacing_m:
+    if not index.decimated or index.resolution_m >= index.spacing_m:
         return None
     return (
-        f"evenly spread mesh (decimated or remeshed by its software): sampled every "
+        f"decimated mesh (its vertices evenly spread, denser where it bends): sampled every "
         f"{index.spacing_m * 1000:.1f} mm but read as a {index.resolution_m * 1000:.0f} mm "
         f"surface, so the fingertips and toe tips are set {tip_allowance(index) * 1000:.0f} and "
-        f"{toe_allowance(index) * 1000:.0f} mm past the scanned hands' and feet's ends (a coarse "
-        "mesh smoothed until its vertices spread evenly would have them a few mm short)"
+        f"{toe_allowance(index) * 1000:.0f} mm past the scanned hands' and feet's ends (where its "
+        "software rounded the ends off more than that, they are a few mm short)"
     )
 
 
@@ -442,8 +442,8 @@ def iter_fit(
             under = closed_over(body.V, tpl.F, r, vertices=np.flatnonzero(dm))
             dm = dm & ~under
             report.notes.append(closed_mesh_note(r, int(under.sum())))
-        if (even := even_mesh_note(index)) is not None:
-            report.notes.append(even)
+        if (dec := decimated_mesh_note(index)) is not None:
+            report.notes.append(dec)
     full = replace(ops.full, V=Vs, data_mask=dm)
     needs_low = any(st.resolution == "low" for st in schedule.stages)
     low = (

@@ -24,7 +24,7 @@ Decisions
   software writes at 10-20 k vertices: a fine closed mesh (5-7 mm grid, as above) decimated by
   quadric edge collapse (:func:`decimate`, fast-simplification, MIT) to a drawn 10-20 k vertices:
   the vertices stay on the fine surface, few on the flat torso (edges to 25 mm), many where it
-  bends, spread evenly (nearest-neighbour distances' 90th/10th percentile 1.5-2.5 against
+  bends, spread evenly (nearest-neighbour distances' 90th/10th percentile 2.7-3.0 against
   marching cubes' 5-9). Its sampling (8 mm) says nothing of its detail: its fingertips and toes lie
   0-3 and 1-8 mm short of the truth's, a 12 mm grid's 4-14 and 5-10. mm, +Y up, floor 0, flat
   cut soles. Only in :func:`decimated_cases` (seeds 700 on), each with a ``raw`` twin.

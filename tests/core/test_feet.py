@@ -154,4 +154,4 @@ def test_a_decimated_meshs_feet_end_at_the_truths_toes(realworld_case):
     for x in "LR":
         off = np.linalg.norm(res.vertices[L[f"Toe_tip_{x}"]] - truth[L[f"Toe_tip_{x}"]]) * 1000
         assert off < 5.0, (x, off)
-    assert any(n.startswith("evenly spread mesh") for n in res.report.notes), res.report.notes
+    assert any(n.startswith("decimated mesh") for n in res.report.notes), res.report.notes

@@ -124,50 +124,59 @@ def test_a_heavy_bodys_open_hands_end_where_the_scan_does(realworld_case):
         assert res.report.quality.parts[f"hand_{s}"].hand_tip_gap_m < 0.015
 
 
-def test_an_evenly_spread_mesh_is_read_by_its_detail_not_its_sampling():
-    """A marching-cubes mesh (a sphere on a 12 mm grid: its vertices on the grid's edges, their
-    neighbour distances spread widely) is as detailed as its sampling; the same sphere meshed
-    on a 4 mm grid and decimated to an eighth of its vertices (sampled as coarsely, spread
-    evenly) holds a finer surface: ``resolution_m`` is at most ``EVEN_MESH_RESOLUTION_M``
-    there, the fingertip's allowance follows it, and the report's note says so. Point clouds
-    keep their sampling."""
+def test_a_decimated_mesh_is_read_by_its_detail_not_its_sampling():
+    """An ellipsoid (semi-axes 25, 10 and 5 cm: it bends more at its ends) meshed by marching
+    cubes on a 12 mm grid (its vertices on the grid's edges, their neighbour distances spread
+    widely) is as detailed as its sampling. Meshed on a 4 mm grid and decimated by edge collapse
+    to an eighth of its vertices (sampled about as coarsely, spread evenly, denser at its ends)
+    it holds a finer surface: ``resolution_m`` is at most ``DECIMATED_RESOLUTION_M`` there,
+    the fingertip's allowance follows it, and the report's note says so. Clustered on a 12 mm
+    grid instead (evenly spread, as dense everywhere: the cells' means round the ends off) and
+    as a point cloud it keeps its sampling."""
     pytest.importorskip("skimage")
     pytest.importorskip("fast_simplification")
     from skimage.measure import marching_cubes
 
     from core.geometry import vertex_normals
-    from core.registration.correspondence import EVEN_MESH_RESOLUTION_M, ScanIndex
+    from core.io.prepare import decimate_voxel_grid
+    from core.io.readers import RawMesh
+    from core.registration.correspondence import DECIMATED_RESOLUTION_M, ScanIndex
+    from core.registration.fit import decimated_mesh_note
     from core.registration.hand_length import TIP_PER_SPACING, tip_allowance
     from core.scan import Scan
     from core.synth.scanner_outputs import decimate
 
-    def sphere(h: float) -> tuple[np.ndarray, np.ndarray]:  # r 0.2 m, outward
-        g = np.arange(-0.25, 0.25 + h, h) + 0.137 * h
-        X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
-        V, F, _, _ = marching_cubes(np.sqrt(X**2 + Y**2 + Z**2) - 0.2, 0.0, spacing=(h, h, h))
-        return V + g[0], F[:, [0, 2, 1]].astype(np.int64)
+    axes = np.array([0.25, 0.10, 0.05])
+
+    def ellipsoid(h: float) -> tuple[np.ndarray, np.ndarray]:  # outward
+        g = [np.arange(-a - 2 * h, a + 3 * h, h) + 0.137 * h for a in axes]
+        X, Y, Z = np.meshgrid(*g, indexing="ij")
+        f = np.sqrt((X / axes[0]) ** 2 + (Y / axes[1]) ** 2 + (Z / axes[2]) ** 2) - 1.0
+        V, F, _, _ = marching_cubes(f, 0.0, spacing=(h, h, h))
+        return V + np.array([gi[0] for gi in g]), F[:, [0, 2, 1]].astype(np.int64)
 
     def index(V: np.ndarray, F: np.ndarray | None) -> ScanIndex:
         N = vertex_normals(V, F) if F is not None else V / np.linalg.norm(V, axis=1)[:, None]
         ones = np.ones(len(V))
         return ScanIndex(Scan(V=V, F=F, normals=N, confidence=ones, boundary=ones < 0))
 
-    coarse = index(*sphere(0.012))
-    Vf, Ff = sphere(0.004)
+    coarse = index(*ellipsoid(0.012))
+    Vf, Ff = ellipsoid(0.004)
     fine = index(Vf, Ff)
     Vd, Fd = decimate(Vf, Ff, len(Vf) // 8)
     dec = index(Vd, Fd)
-    assert not coarse.evenly_spread and coarse.resolution_m == coarse.spacing_m
-    assert not fine.evenly_spread and fine.resolution_m == fine.spacing_m < 0.004
-    assert dec.evenly_spread and dec.spacing_m > 0.006, dec.spacing_m  # as coarse as the 12 mm
-    assert dec.resolution_m == EVEN_MESH_RESOLUTION_M
-    assert abs(tip_allowance(dec) - TIP_PER_SPACING * EVEN_MESH_RESOLUTION_M) < 1e-12
-    cloud = index(Vd, None)  # the same points without faces: nothing says how they were made
-    assert not cloud.evenly_spread and cloud.resolution_m == cloud.spacing_m
-    from core.registration.fit import even_mesh_note  # the report says how it was read
-
-    assert even_mesh_note(coarse) is None and even_mesh_note(cloud) is None
-    note = even_mesh_note(dec)
+    cl = decimate_voxel_grid(RawMesh(V=Vf, F=Ff, normals=None, confidence=None, colors=None), 0.012)
+    keep = (cl.F[:, 0] != cl.F[:, 1]) & (cl.F[:, 1] != cl.F[:, 2]) & (cl.F[:, 0] != cl.F[:, 2])
+    clustered = index(cl.V, cl.F[keep])
+    cloud = index(Vd, None)  # the decimated points without faces: nothing says how they were made
+    assert dec.spacing_m > 0.8 * coarse.spacing_m, (dec.spacing_m, coarse.spacing_m)
+    for ix in (coarse, fine, clustered, cloud):
+        assert not ix.decimated and ix.resolution_m == ix.spacing_m
+        assert decimated_mesh_note(ix) is None
+    assert fine.spacing_m < 0.004 and clustered.spacing_m > 0.006
+    assert dec.decimated and dec.resolution_m == DECIMATED_RESOLUTION_M < dec.spacing_m
+    assert abs(tip_allowance(dec) - TIP_PER_SPACING * DECIMATED_RESOLUTION_M) < 1e-12
+    note = decimated_mesh_note(dec)  # the report says how it was read
     assert note is not None and "read as a 3 mm surface" in note, note
     assert f"sampled every {dec.spacing_m * 1000:.1f} mm" in note
 
