@@ -661,7 +661,8 @@ def main(argv: list[str] | None = None) -> int:
         "--decimated",
         action="store_true",
         help="--cases bodies as closed meshes decimated to 10-20 k vertices (quadric edge "
-        "collapse of a 5-7 mm grid's mesh) and raw twins, instead of the varied set",
+        "collapse of a 5-7 mm grid's mesh) and raw twins, instead of the varied set; with "
+        "--booth: the booth subjects so decimated",
     )
     ap.add_argument(
         "--hair",
@@ -693,9 +694,16 @@ def main(argv: list[str] | None = None) -> int:
         wide_cases,
     )
 
-    if args.heavy + args.booth + args.wide + args.palms + args.decimated > 1:
-        ap.error("--heavy, --booth, --wide, --palms and --decimated are different sets: choose one")
-    if args.decimated:
+    if args.heavy + args.booth + args.wide + args.palms + args.decimated > 1 + (
+        args.booth and args.decimated
+    ):
+        ap.error(
+            "--heavy, --booth, --wide, --palms and --decimated are different sets: choose one "
+            "(or --booth --decimated: the booth subjects decimated)"
+        )
+    if args.booth and args.decimated:
+        cases = [(s, "closed_booth_decimated") for s, _ in booth_cases(args.cases)]
+    elif args.decimated:
         cases = decimated_cases(args.cases)
     elif args.palms:
         cases = palm_cases(args.cases)

@@ -27,7 +27,11 @@ Decisions
   bends, spread evenly (nearest-neighbour distances' 90th/10th percentile 2.7-3.0 against
   marching cubes' 5-9). Its sampling (8 mm) says nothing of its detail: its fingertips and toes lie
   0-3 and 1-8 mm short of the truth's, a 12 mm grid's 4-14 and 5-10. mm, +Y up, floor 0, flat
-  cut soles. Only in :func:`decimated_cases` (seeds 700 on), each with a ``raw`` twin.
+  cut soles. Only in :func:`decimated_cases` (seeds 700 on), each with a ``raw`` twin; and
+  ``closed_booth_decimated``: a booth subject (below; the same hair, arms, plate and vertex
+  count as its ``closed_booth`` case) meshed on a 5-7 mm grid and decimated so
+  (``bench.realworld --booth --decimated``); where an arm lay a voxel from the flank a collapse
+  can join the two sheets along an edge: 0-6 edges in four faces, none open.
 - **Hair** (:func:`hair_volume`): ``bun`` (sphere r 3.5–5.5 cm behind and above the
   opisthocranion), ``ponytail`` (capsule r 2.5–3.5 cm from the back of the head, 12–25 cm down and
   back), ``cap`` (the scalp above the tragion level thickened by 1–3 cm), or ``cap+bun``; and,
@@ -109,6 +113,8 @@ KINDS = {
     "closed_palms": "closed hole-filled mesh, 8-20 k vertices, palms turned 45-100°",
     "closed_decimated": "closed mesh decimated by quadric edge collapse to 10-20 k vertices "
     "(from a 5-7 mm grid), mm, +Y up",
+    "closed_booth_decimated": "closed_booth's subject (hair, touching arms, plate) meshed on a "
+    "5-7 mm grid and decimated by quadric edge collapse to its 10-15 k vertices",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -123,7 +129,7 @@ PALM_KINDS = {"raw_palms": "raw", "closed_palms": "closed_lowres"}
 _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
-    "raw_palms", "closed_palms", "closed_decimated",
+    "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -816,7 +822,7 @@ def make_case(
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
     body = off_model_body(np.random.default_rng([seed, 101]))
-    booth = kind == "closed_booth"
+    booth = kind in ("closed_booth", "closed_booth_decimated")
     brng = np.random.default_rng([seed, 105])  # the booth subject's protocol
     touching = kind == "closed_touching" or (booth and brng.random() < 0.4)
     wide = kind in WIDE_KINDS
@@ -852,7 +858,9 @@ def make_case(
         X, F, out = closed_mesh(P, F_t, rng, voxel_m=h, mitten_m=mitten, hair=hair, floor=floor)
         if booth and voxel_m is None:  # decimated to the drawn 10-15 k vertices: regrid once
             want = float(brng.uniform(10_000, 15_000))
-            if not 0.9 * want < len(X) < 1.1 * want:
+            if kind == "closed_booth_decimated":  # or by edge collapse from the fine mesh
+                n_decimated = int(want)
+            elif not 0.9 * want < len(X) < 1.1 * want:
                 h = float(np.clip(h * np.sqrt(len(X) / want), 0.008, 0.02))
                 X, F, out = closed_mesh(P, F_t, np.random.default_rng([seed, 106]), voxel_m=h,
                                         mitten_m=mitten, hair=hair, floor=floor)  # fmt: skip
@@ -887,7 +895,7 @@ def make_case(
         elif kind == "cloud":
             F, normals = None, None
     # frame
-    if kind in ("closed_lowres", "closed_booth", "closed_decimated"):
+    if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated"):
         units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
     else:
         units = str(rng.choice(list(UNITS)))
@@ -936,11 +944,8 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    base = [
-        k
-        for k in sorted(KINDS)
-        if k not in ("dense", "closed_booth", "closed_decimated", *WIDE_KINDS, *PALM_KINDS)
-    ]
+    apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated")
+    base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS)]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:

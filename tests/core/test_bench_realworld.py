@@ -232,7 +232,7 @@ def test_hair_option_names_the_styles_it_takes(capsys):
 
 def test_decimated_meshes_pair_with_their_raw_twins(capsys):
     """A closed_decimated fit is compared with the raw fit of its body (``twins``), and
-    ``--decimated`` is a set of its own (not with another set)."""
+    ``--decimated`` is a set of its own (not with another set but ``--booth``)."""
     from bench.realworld import main, twins
 
     V = np.asarray(load_template().V, float)
@@ -241,5 +241,5 @@ def test_decimated_meshes_pair_with_their_raw_twins(capsys):
     (t,) = twins(rows)
     assert t["seed"] == 700 and abs(t["mean_mm"] - 2.0) < 1e-6
     with pytest.raises(SystemExit) as e:
-        main(["--decimated", "--booth", "--cases", "1", "--no-save"])
+        main(["--decimated", "--heavy", "--cases", "1", "--no-save"])
     assert e.value.code == 2 and "--decimated are different sets" in capsys.readouterr().err

@@ -306,7 +306,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     assert len(cases) == 40 and len(set(cases)) == 40
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
-        "closed_booth", "closed_decimated", *WIDE_KINDS, *PALM_KINDS,
+        "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
     }  # fmt: skip
 
 
@@ -371,6 +371,23 @@ def test_decimated_meshes_keep_the_fine_surface_with_few_even_vertices():
         + palm_cases(20)
     }  # fmt: skip
     assert make_case(700, "raw").body_key == c.body_key
+
+
+def test_decimated_booth_meshes_are_the_booth_subjects_decimated():
+    """closed_booth_decimated-300: closed_booth-300's subject (touching arms, a bun, its drawn
+    10-15 k vertices) from a 5-7 mm grid decimated by edge collapse: closed (a few edges where
+    two sheets were joined are non-manifold, as decimated meshes of fused arms can be), outward,
+    mm, +Y up, its vertices spread evenly (the booth mesh's marching cubes: unevenly)."""
+    c, b = make_case(300, "closed_booth_decimated"), make_case(300, "closed_booth")
+    assert c.units == "mm" and c.up == "+y" and c.body_key == b.body_key
+    assert c.params["posture"]["touching"] and c.params["output"]["hair"]["style"] == "bun"
+    assert c.params["output"]["voxel_m"] <= 0.007 and 10_000 <= len(c.V) <= 15_000
+    und, _ = _edge_uses(c.F)
+    # closed, but where two sheets of the fine mesh lay a voxel apart (an arm at the flank) an
+    # edge collapse can join them along an edge: 3 edges in four faces here, none open
+    assert np.all(und % 2 == 0) and 0 < np.sum(und == 4) <= 6, np.bincount(und)
+    assert mesh_volume(c.V, c.F) > 0
+    assert _nn_spread(_canonical(c)[0])[1] < 3.5 < _nn_spread(_canonical(b)[0])[1]
 
 
 def test_wide_arms_cases_are_t_pose_captures_in_any_frame():
