@@ -268,6 +268,16 @@ ROUND_POINT_WEIGHT = 0.1
 #: Iterations of the round's second body prior, from the previous fit (it starts converged:
 #: 24 iterations gave the same five sets to the last digit).
 RESTART_ITERATIONS = 12
+#: The first shape-space fit pairs this many times its 4000 scan → body rows' worth of scan points,
+#: each weighing its share (``fit_body_prior(scan_oversample=)``): which points a fixed stride
+#: picks of a raw multi-view scan (its views' overlaps) or of a closed mesh (its grid) averages
+#: out, and the two deliveries of one body land closer. Twin diagnostic (``bench.realworld``'s 8
+#: closed_lowres / raw pairs), 1 -> 3 everywhere (the search's short fits too): twins 3.58 -> 3.47
+#: mm, body priors 3.32 -> 3.21, correspondence closed 6.62 -> 6.63, raw 5.68 -> 5.66, CPU median
+#: 6.8 -> 6.7 s; (3x the points at full weight: 3.43; 6x: 3.57). In the search too it changed
+#: raw-19's start of the varied 40 (its head's flexion lost, 50° turned, correspondence 5.7 -> 28.0
+#: mm, ``failed``): the search keeps 1.
+FIRST_FIT_SCAN_OVERSAMPLE = 3
 #: Iterations of the body prior of the round's quality retry (:data:`MARKERLESS_RETRIES`; with
 #: the round at 24, the retry at 24 too read palms 20 9.77 mm and booth 12.00 but took the retry
 #: path 1.1 s CPU more).
@@ -769,6 +779,7 @@ def fit_markerless(
             "k_schedule": K_SCHEDULE[-1:] if quick else K_SCHEDULE,
             "iterations": 8 if quick else 16,
             "bidirectional": True,
+            "scan_oversample": FIRST_FIT_SCAN_OVERSAMPLE,
             "freeze_pose": 0 if quick else 3,
             "initial_pose": start.pose,
             "initial_coefficients": start.coefficients,

@@ -327,6 +327,7 @@ class PriorOptions:
     bidirectional: bool = False
     freeze_pose: int = 0
     scan_sample: int = 4000
+    scan_oversample: int = 1
     initial_pose: dict[str, np.ndarray] | None = None
     initial_coefficients: np.ndarray | None = None
     max_angle_deg: float = 60.0
@@ -418,9 +419,12 @@ def _scan_to_template(
     n_sample: int,
     min_cos: float = 0.5,
     explained: np.ndarray | None = None,
+    oversample: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample: each
-    scan point with its closest compatible vertex of ``cand``.
+    scan point with its closest compatible vertex of ``cand``. ``n_sample``: the direction's
+    weight in unit rows; :data:`SCAN_OVERSAMPLE` times as many points are paired (every k-th in
+    file order), each weighing its share (at most 1).
 
     ``explained``: vertices that take no data (the template's regions that scan badly: fingers,
     toes, ears) but explain the scan points closest to them: such a point makes no pair, where
@@ -428,8 +432,9 @@ def _scan_to_template(
     palm, and with it the hand, 5-31 mm down the forearm's axis).
     """
     pts = index.points
-    step = max(1, len(pts) // n_sample)
+    step = max(1, len(pts) // (oversample * n_sample))
     sel = np.arange(0, len(pts), step)
+    share = min(1.0, n_sample / len(sel))
     n_data = len(cand)
     allc = cand if explained is None else np.r_[cand, explained]
     tree = cKDTree(X[allc])
@@ -452,7 +457,7 @@ def _scan_to_template(
     has &= hit < n_data
     v = allc[hit][has]
     p = sel[has]
-    w = index.point_weight[p] * ~index.boundary[p]
+    w = index.point_weight[p] * ~index.boundary[p] * share
     return v, pts[p], w, index.normals[p]
 
 
@@ -708,6 +713,7 @@ def fit_body_prior(
     bidirectional: bool = False,
     freeze_pose: int = 0,
     scan_sample: int = 4000,
+    scan_oversample: int = 1,
     initial_pose: dict[str, np.ndarray] | None = None,
     initial_coefficients: np.ndarray | None = None,
     max_angle_deg: float = 60.0,
@@ -750,6 +756,10 @@ def fit_body_prior(
         few first, more later); the last entry holds for the remaining iterations.
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
         vertex (without markers, one-way pairs let the body shrink or slide off the scan).
+    scan_oversample : pair this many times ``scan_sample`` scan points (every k-th), each
+        weighing its share: the direction keeps the weight of ``scan_sample`` rows, and which
+        points a fixed stride picks averages out (e.g. :data:`core.matching.markerless.
+        FIRST_FIT_SCAN_OVERSAMPLE`).
     freeze_pose : iterations before the bone rotations may move (coarse alignment first).
     initial_pose : bone name (of :data:`POSE_BONES`) -> (3, 3) local rotation to start from
         (a markerless search's arm-pose hypothesis); others start at the identity.
@@ -885,7 +895,8 @@ def fit_body_prior(
                 min_cos = np.cos(np.radians(max_angle_deg))
                 explained = np.flatnonzero(~mask & sub)  # bad-scan regions explain their data
                 s_rows, s_P, s_w, s_N = _scan_to_template(
-                    index, X, N, cand, md, scan_sample, min_cos, explained=explained
+                    index, X, N, cand, md, scan_sample, min_cos, explained=explained,
+                    oversample=scan_oversample,
                 )
                 rows = np.r_[rows, s_rows]
                 P = np.vstack([P, s_P])
