@@ -895,7 +895,14 @@ def fit_body_prior(
                 min_cos = np.cos(np.radians(max_angle_deg))
                 explained = np.flatnonzero(~mask & sub)  # bad-scan regions explain their data
                 s_rows, s_P, s_w, s_N = _scan_to_template(
-                    index, X, N, cand, md, scan_sample, min_cos, explained=explained,
+                    index,
+                    X,
+                    N,
+                    cand,
+                    md,
+                    scan_sample,
+                    min_cos,
+                    explained=explained,
                     oversample=scan_oversample,
                 )
                 rows = np.r_[rows, s_rows]
