@@ -323,6 +323,7 @@ class PriorOptions:
     marker_scale: float = 0.03
     marker_scale_start: float = 0.3
     subsample: int = 3
+    template_row_weight: float = 1.0
     k_schedule: tuple[int, ...] | None = None
     bidirectional: bool = False
     freeze_pose: int = 0
@@ -709,6 +710,7 @@ def fit_body_prior(
     marker_floor: np.ndarray | None = None,
     vertex_weight: np.ndarray | None = None,
     subsample: int = 3,
+    template_row_weight: float = 1.0,
     k_schedule: tuple[int, ...] | None = None,
     bidirectional: bool = False,
     freeze_pose: int = 0,
@@ -752,6 +754,10 @@ def fit_body_prior(
         weight whatever the current fit says); default 0.
     vertex_weight : (n,) multiplier of each template vertex's data rows (default 1): a retry
         raises a lost body part's weight so its data pulls it back.
+    subsample, template_row_weight : every ``subsample``-th template vertex makes a
+        template → scan data row (one per vertex, matched to its closest compatible scan point)
+        of this weight (e.g. ``subsample`` 2 at 2/3: denser, the term as heavy as every third
+        vertex's at full weight, :data:`core.matching.markerless.FIRST_FIT_SUBSAMPLE`).
     k_schedule : number of active shape components per iteration (the paper's k' schedule:
         few first, more later); the last entry holds for the remaining iterations.
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
@@ -889,7 +895,7 @@ def fit_body_prior(
                 ok[ok] = ~other_foot_matches(X, cand[ok], corr.targets[ok], toe_side, foot_side)
             rows = cand[ok]
             P = corr.targets[ok]
-            w = corr.weights[ok]
+            w = corr.weights[ok] * template_row_weight
             Np = index.normals[corr.point_ids[ok]] @ sim.R  # scan normals in the posed frame
             if bidirectional:  # scan → template pairs too: the body must cover the scan
                 min_cos = np.cos(np.radians(max_angle_deg))
