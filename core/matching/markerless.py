@@ -284,6 +284,11 @@ FIRST_FIT_SCAN_OVERSAMPLE = 3
 #: / raw 5.65, CPU median 7.4 s; every second 3.32 (3.97), 3.05, 6.58 / 5.54, 7.6 s; every
 #: vertex at 1/3 3.36 (4.06), 3.09, 6.63 / 5.55, 8.5 s.
 FIRST_FIT_SUBSAMPLE = 2
+#: The same in the soft-marker round's body prior (its restart and retry too). Twin diagnostic
+#: (on the above): every third vertex: twins 3.32 mm (worst 3.97), body priors 3.05,
+#: correspondence closed 6.58 / raw 5.54, CPU median 7.7 s; every second at 2/3: 3.24 (4.17),
+#: 2.95, 6.53 / 5.56, 8.4 s; every vertex at 1/3: 3.24 (3.95), 2.95, 6.57 / 5.53, 10.3 s.
+ROUND_SUBSAMPLE = 2
 #: Iterations of the body prior of the round's quality retry (:data:`MARKERLESS_RETRIES`; with
 #: the round at 24, the retry at 24 too read palms 20 9.77 mm and booth 12.00 but took the retry
 #: path 1.1 s CPU more).
@@ -996,6 +1001,7 @@ def fit_markerless(
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
                 "point_weight": ROUND_POINT_WEIGHT,
+                "subsample": ROUND_SUBSAMPLE, "template_row_weight": ROUND_SUBSAMPLE / 3,
             },
             **options,
         )  # fmt: skip
