@@ -58,6 +58,7 @@ from core.registration.shape_prior import (
     LIMB_PRIOR,
     TRUNK_PRIOR,
     PriorFit,
+    PriorOptions,
     arm_pose,
     fit_body_prior,
 )
@@ -77,6 +78,13 @@ K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
 #: first shape-space fit only: the soft-marker rounds keep its feet by their landmarks (with the
 #: floor in the rounds too, closed_lowres-28's last round ended 21.0 mm from the truth, not 17.8).
 FLOOR_GAP_M = 0.01
+
+
+def denser_template_rows(subsample: int) -> dict[str, Any]:
+    """Body-prior options: every ``subsample``-th template vertex's body → scan row, each
+    weighing its share of the default sampling's (the term as heavy as at
+    :attr:`PriorOptions.subsample`)."""
+    return {"subsample": subsample, "template_row_weight": subsample / PriorOptions.subsample}
 
 
 def _rot_y(deg: float) -> np.ndarray:
@@ -791,8 +799,7 @@ def fit_markerless(
             "iterations": 8 if quick else 16,
             "bidirectional": True,
             "scan_oversample": FIRST_FIT_SCAN_OVERSAMPLE,
-            "subsample": FIRST_FIT_SUBSAMPLE,
-            "template_row_weight": FIRST_FIT_SUBSAMPLE / 3,
+            **denser_template_rows(FIRST_FIT_SUBSAMPLE),
             "freeze_pose": 0 if quick else 3,
             "initial_pose": start.pose,
             "initial_coefficients": start.coefficients,
@@ -1001,7 +1008,7 @@ def fit_markerless(
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
                 "point_weight": ROUND_POINT_WEIGHT,
-                "subsample": ROUND_SUBSAMPLE, "template_row_weight": ROUND_SUBSAMPLE / 3,
+                **denser_template_rows(ROUND_SUBSAMPLE),
             },
             **options,
         )  # fmt: skip

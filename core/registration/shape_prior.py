@@ -424,8 +424,8 @@ def _scan_to_template(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample: each
     scan point with its closest compatible vertex of ``cand``. ``n_sample``: the direction's
-    weight in unit rows; :data:`SCAN_OVERSAMPLE` times as many points are paired (every k-th in
-    file order), each weighing its share (at most 1).
+    weight in unit rows; ``oversample`` times as many points are paired (every k-th in file
+    order), each weighing its share (at most 1).
 
     ``explained``: vertices that take no data (the template's regions that scan badly: fingers,
     toes, ears) but explain the scan points closest to them: such a point makes no pair, where
