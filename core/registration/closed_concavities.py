@@ -10,6 +10,11 @@ takes the body's vertices that such a ball cannot reach on the body prior from t
 not from the bridging surface over them (the body prior itself fits the scan as it is: masked
 there as well, the 8 twin pairs of ``bench.realworld`` read 4.23 mm, not 4.38, but
 closed_plate-15's shoulders slid 8-13 mm further off, ``tests/core/test_markerless_search.py``).
+
+The same software rounds off the body's *convex* detail narrower than its grid: nose tip and
+wings, lips, the chin's edge, the ears' rims. Those vertices are the ones a ball of about the
+mesh's resolution cannot reach from *inside* the body (:func:`rounded_off`), and the refinement
+takes them from the body prior too (:data:`ROUNDED_OFF_PER_RESOLUTION`).
 """
 
 from __future__ import annotations
@@ -33,6 +38,17 @@ MAX_BOUNDARY_SHARE = 0.02
 INACCESSIBLE_SHARE = 0.005
 #: Scan points tested (a random sample; the share is what counts).
 SAMPLE = 20_000
+#: Radius of the inner ball of :func:`rounded_off`, per unit of a closed mesh's detail
+#: (``ScanIndex.resolution_m``: 5-6 mm on the closed meshes of 14-20 k vertices of
+#: ``bench.realworld``, so 6-7 mm; 3 mm on a decimated one). On those meshes of the twin
+#: diagnostic (8 closed_lowres bodies) the data-taking vertices a 6 mm inner ball cannot reach
+#: (10 %: the nose 61 % of its region, the chin 31 %, the eyes' rims 40 %) lay 3.9 mm from the
+#: mesh's surface on their true body, the others 1.4 mm. Taken from the body prior, the
+#: closed/raw twins read 3.24 -> 3.17 mm and the closed fits' correspondence 6.53 -> 6.45 mm
+#: (1.5x: 3.18 / 6.47; 1.8x: 3.20 / 6.51, the hands' palms then lost their data too).
+ROUNDED_OFF_PER_RESOLUTION = 1.2
+#: Depth (metres) the inner ball of :func:`rounded_off` may cut through the surface.
+ROUNDED_OFF_DEPTH_M = 0.001
 
 
 def inaccessible(P: np.ndarray, N: np.ndarray, tree: cKDTree, r: float, tol: float) -> np.ndarray:
@@ -70,6 +86,29 @@ def scan_closing_radius(
     return best
 
 
+def _ball_unreachable(
+    X: np.ndarray,
+    F: np.ndarray,
+    r: float,
+    depth_m: float,
+    vertices: np.ndarray | None,
+    side: float,
+) -> np.ndarray:
+    """(n,) bool: vertices of X (n, 3) (the ``vertices`` given, default all) where a ball of
+    radius r touching the surface on ``side`` (+1 outside, -1 inside, along the vertex normal)
+    cuts more than ``depth_m`` into the surface elsewhere."""
+    X = np.asarray(X, np.float64)
+    out = np.zeros(len(X), bool)
+    if r <= 0:
+        return out
+    ids = np.arange(len(X)) if vertices is None else np.asarray(vertices, np.int64)
+    N = vertex_normals(X, np.asarray(F, np.int64))
+    # k = 3 nearest vertices' triangles: the same verdicts as k = 8 on the template, 2.5x faster
+    d = MeshDistance(X, F, k=3).distances(X[ids] + side * r * N[ids])
+    out[ids] = d < r - depth_m
+    return out
+
+
 def closed_over(
     X: np.ndarray,
     F: np.ndarray,
@@ -81,13 +120,18 @@ def closed_over(
     (metres) touching from outside along the vertex normal cannot reach: it cuts more than
     ``depth_m`` into the body's surface elsewhere (a closed mesh bridges them). Only the
     ``vertices`` given (indices; default all) are tested, the others read False."""
-    X = np.asarray(X, np.float64)
-    out = np.zeros(len(X), bool)
-    if r <= 0:
-        return out
-    ids = np.arange(len(X)) if vertices is None else np.asarray(vertices, np.int64)
-    N = vertex_normals(X, np.asarray(F, np.int64))
-    # k = 3 nearest vertices' triangles: the same verdicts as k = 8 on the template, 2.5x faster
-    d = MeshDistance(X, F, k=3).distances(X[ids] + r * N[ids])
-    out[ids] = d < r - depth_m
-    return out
+    return _ball_unreachable(X, F, r, depth_m, vertices, 1.0)
+
+
+def rounded_off(
+    X: np.ndarray,
+    F: np.ndarray,
+    r: float,
+    depth_m: float = ROUNDED_OFF_DEPTH_M,
+    vertices: np.ndarray | None = None,
+) -> np.ndarray:
+    """(n,) bool: vertices of the body X (n, 3), faces F (m, 3), that a ball of radius r
+    (metres) touching from inside along the vertex normal cannot reach: convex detail
+    narrower than the ball (a coarse closed mesh rounds it off). ``vertices`` as for
+    :func:`closed_over`."""
+    return _ball_unreachable(X, F, r, depth_m, vertices, -1.0)
