@@ -11,8 +11,8 @@ not from the bridging surface over them (the body prior itself fits the scan as 
 there as well, the 8 twin pairs of ``bench.realworld`` read 4.23 mm, not 4.38, but
 closed_plate-15's shoulders slid 8-13 mm further off, ``tests/core/test_markerless_search.py``).
 
-The same software rounds off the body's *convex* detail narrower than its grid: nose tip and
-wings, lips, the chin's edge, the ears' rims. Those vertices are the ones a ball of about the
+The same software rounds off the body's *convex* detail narrower than its grid: the nose's
+wings, the lips, the chin's edge, the ears' rims. Those vertices are the ones a ball of about the
 mesh's resolution cannot reach from *inside* the body (:func:`rounded_off`), and the refinement
 takes them from the body prior too (:data:`ROUNDED_OFF_PER_RESOLUTION`).
 """
@@ -42,10 +42,11 @@ SAMPLE = 20_000
 #: (``ScanIndex.resolution_m``: 5-6 mm on the closed meshes of 14-20 k vertices of
 #: ``bench.realworld``, so 6-7 mm; 3 mm on a decimated one). On those meshes of the twin
 #: diagnostic (8 closed_lowres bodies) the data-taking vertices a 6 mm inner ball cannot reach
-#: (10 %: the nose 61 % of its region, the chin 31 %, the eyes' rims 40 %) lay 3.9 mm from the
-#: mesh's surface on their true body, the others 1.4 mm. Taken from the body prior, the
-#: closed/raw twins read 3.24 -> 3.17 mm and the closed fits' correspondence 6.53 -> 6.45 mm
-#: (1.5x: 3.18 / 6.47; 1.8x: 3.20 / 6.51, the hands' palms then lost their data too).
+#: (10 % of them: 61 % of the face nearest the pronasale, 31 % nearest the menton, 40 % round
+#: the eyes) lay 3.9 mm from the mesh's surface on their true body, the others 1.4 mm. Taken
+#: from the body prior, the closed/raw twins read 3.24 -> 3.17 mm and the closed fits'
+#: correspondence 6.53 -> 6.45 mm (1.5x: 3.18 / 6.47; 1.8x: 3.20 / 6.51, the hands' palms then
+#: lost their data too). In the body prior as well (its data rows): twins 3.38, worse.
 ROUNDED_OFF_PER_RESOLUTION = 1.2
 #: Depth (metres) the inner ball of :func:`rounded_off` may cut through the surface.
 ROUNDED_OFF_DEPTH_M = 0.001

@@ -82,12 +82,52 @@ def test_closed_over_marks_the_bodys_narrow_gaps_not_its_open_surface(realworld_
     assert not closed_over(truth, F, 0.0).any()
 
 
+def test_rounded_off_marks_convex_detail_narrower_than_the_ball(realworld_case):
+    """On a true body (raw-0's): a 6 mm ball inside cannot reach most of the lips and mouth's
+    edge, the ears' rims and the nose's wings, but reaches the neck, forearms, shins and the
+    back of the head everywhere and nearly all of the torso and thighs; a sphere of 10 cm
+    radius is reached everywhere, one of 4 mm nowhere; ``vertices=`` tests only those."""
+    from core.registration.closed_concavities import rounded_off
+    from core.template import load_template
+
+    tpl = load_template()
+    F = np.asarray(tpl.F, np.int64)
+    _, _, truth = realworld_case(0, "raw")
+    m = rounded_off(truth, F, 0.006)
+    L = tpl.landmarks
+
+    def near(p: np.ndarray, r: float) -> np.ndarray:
+        return np.linalg.norm(truth - p, axis=1) < r
+
+    mouth = near((truth[L["Menton"]] + truth[L["Pronasale"]]) / 2, 0.015)
+    assert m[mouth].mean() > 0.6, m[mouth].mean()  # measured 0.83
+    assert m[near(truth[L["Pronasale"]], 0.02)].mean() > 0.15  # measured 0.26 (wings, not tip)
+    assert m[np.asarray(tpl.mask("ears"), bool)].mean() > 0.25  # measured 0.39
+    share = {p: m[tpl.part_mask(p)].mean() for p in tpl.part_names}
+    for part in ("neck", "forearm_L", "forearm_R", "shin_L", "shin_R"):  # measured 0
+        assert share[part] == 0.0, part
+    for part in ("torso", "thigh_L", "thigh_R"):  # measured 0.058, 0.027
+        assert share[part] < 0.1, (part, share[part])
+    assert not m[tpl.part_mask("head") & near(truth[L["Opisthocranion"]], 0.05)].any()
+    some = np.flatnonzero(mouth)[::2]
+    sub = rounded_off(truth, F, 0.006, vertices=some)
+    assert np.array_equal(sub[some], m[some]) and sub.sum() == sub[some].sum()
+    V, Fs = _sphere()
+    assert not rounded_off(V, Fs, 0.006).any()
+    assert rounded_off(V * 0.04, Fs, 0.006).all()
+    assert not rounded_off(truth, F, 0.0).any()
+
+
 @pytest.mark.parametrize("kind", ["closed_lowres", "raw"])
 def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
     """A marker fit of closed_lowres-0 (markers at the truth's landmarks): the body's vertices
     under the mesh's bridges end with no data weight, the rest of the body keeps its data; its
     raw twin (no bridges) keeps data on most of those vertices."""
-    from core.registration.closed_concavities import closed_over
+    from core.registration.closed_concavities import (
+        ROUNDED_OFF_PER_RESOLUTION,
+        closed_over,
+        rounded_off,
+    )
     from core.registration.correspondence import ScanIndex
     from core.registration.fit import fit, template_operators
     from core.template import load_template
@@ -108,6 +148,13 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
         assert takes[dmask & ~under].mean() > 0.8
         assert any(n.startswith("hole-filled closed mesh: ") and f"{r * 1000:.0f} mm ball" in n
                    for n in res.report.notes), res.report.notes  # fmt: skip
+        # convex detail finer than the mesh (its nose, lips, chin) keeps the body prior's too
+        r_in = ROUNDED_OFF_PER_RESOLUTION * index.resolution_m
+        rounded = rounded_off(res.body_prior.X, tpl.F, r_in) & dmask
+        assert rounded.sum() > 100 and not takes[rounded].any()
+        assert any("of convex detail narrower than its resolution" in n for n in res.report.notes)
     else:
         assert takes[under].mean() > 0.5, takes[under].mean()
+        nose = np.linalg.norm(truth - truth[tpl.landmarks["Pronasale"]], axis=1) < 0.015
+        assert takes[nose & dmask].mean() > 0.8  # a raw scan's nose is the skin
         assert not any(n.startswith("hole-filled closed mesh") for n in res.report.notes)

@@ -138,6 +138,48 @@ def test_sole_band_is_the_feet_lower_part():
     assert y[band].max() < SOLE_BAND_M
 
 
+def test_sole_undersides_are_the_feets_downward_faces():
+    """The body prior's data leave out the soles' downward faces
+    (``core.registration.fit.sole_undersides``): foot vertices only, within
+    :data:`SOLE_UNDERSIDE_M` of the soles, their normals pointing down; the heels' backs, the
+    toes' tips and the feet's sides keep their data."""
+    from core.geometry import vertex_normals
+    from core.registration.fit import SOLE_UNDERSIDE_M, sole_undersides
+    from core.template import load_template
+
+    tpl = load_template()
+    m = sole_undersides(tpl)
+    feet = tpl.part_mask("foot_L") | tpl.part_mask("foot_R")
+    y = tpl.V[:, 1] - tpl.V[feet, 1].min()
+    N = vertex_normals(tpl.V, np.asarray(tpl.F, np.int64))
+    assert not m[~feet].any() and y[m].max() < SOLE_UNDERSIDE_M
+    assert (N[m, 1] < -0.5).all()
+    assert 200 < m.sum() < 0.4 * feet.sum()  # measured 500 of 2,134
+    L = tpl.landmarks
+    for x in "LR":
+        for lm in ("Calcaneus_posterior", "Toe_tip", "MTP_I", "MTP_V", "Lateral_malleolus"):
+            assert not m[L[f"{lm}_{x}"]], lm
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_a_flat_cut_sole_does_not_lift_the_body_priors_feet(realworld_case, seed):
+    """closed_lowres-0/-4 (soles cut flat 9-10 mm above the floor): with the markers at the
+    truth's landmarks, the body prior's sole undersides end within 1 mm of the truth's height.
+    With their data (the cut plane's rows) they sat 1.7 and 2.5 mm high, the feet 0.6 and
+    2.4 mm."""
+    from core.registration.fit import fit, sole_undersides
+    from core.template import load_template
+
+    tpl = load_template()
+    _, scan, truth = realworld_case(seed, "closed_lowres")
+    assert scan.V[:, 1].min() > 0.005  # the cut
+    markers = {k: truth[i] for k, i in tpl.landmarks.items()}
+    res = fit(scan, markers, retry=False)
+    under = sole_undersides(tpl)
+    dy = float((res.body_prior.X[under, 1] - truth[under, 1]).mean())
+    assert abs(dy) < 0.001, dy  # measured 0.26 / -0.05 mm
+
+
 @pytest.mark.slow
 def test_a_decimated_meshs_feet_end_at_the_truths_toes(realworld_case):
     """closed_decimated-703 markerless (12-20 k vertices decimated from a 5-7 mm grid, sampled
