@@ -302,6 +302,16 @@ ROUND_SUBSAMPLE = 2
 #: path 1.1 s CPU more).
 RETRY_ITERATIONS = 12
 
+#: The soles' downward faces take no data in the soft-marker round's body prior
+#: (``fit_body_prior(sole_data=False)``): booth software cuts the soles flat 3-8 mm up, and
+#: there the cut plane's rows lifted a closed mesh's feet (the twin diagnostic's 8
+#: closed_lowres bodies: the feet's body prior 1.1 mm above the truth, their raw twins' 0.2).
+#: Twins 3.17 -> 3.14 mm, correspondence closed 6.45 -> 6.44, raw 5.56 -> 5.55; the feet's
+#: body prior 0.1 mm off the truth's height. Not in the first fit: without the soles' rows the
+#: feet of a coarse closed mesh, shrunk by its grid, sank 1.5-2.6 mm (twins 3.10, but
+#: closed_booth-322's hands 3 mm further forward and its correspondence 10.74 -> 11.55 mm;
+#: in marker fits closed_hair-1's right hand 35 -> 52 mm off).
+ROUND_SOLE_DATA = False
 #: Point-to-point share of the data rows in the search's fits (``fit_body_prior(point_weight=)``):
 #: with point-to-plane pairs alone the body slides along the scan (legs grew 9 cm below the soles
 #: of a raw scan, raw-0 of ``core.synth.scanner_outputs``).
@@ -1007,7 +1017,7 @@ def fit_markerless(
                 "hand_length": True, "foot_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
-                "point_weight": ROUND_POINT_WEIGHT,
+                "point_weight": ROUND_POINT_WEIGHT, "sole_data": ROUND_SOLE_DATA,
                 **denser_template_rows(ROUND_SUBSAMPLE),
             },
             **options,

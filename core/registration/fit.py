@@ -228,25 +228,6 @@ TOE_DATA_MAX_SPACING_M = 0.004
 SOLE_BAND_M = 0.045
 
 
-#: height (metres) above the template's soles below which its feet's downward faces take no
-#: data in the body prior (:func:`sole_undersides`): booth software cuts the soles flat 3-8 mm
-#: up (or fuses them with a floor plate), a raw scan's floor contact band is cut or in shadow.
-#: On the cut plane the soles' rows lifted a closed mesh's feet (``bench.realworld``'s 8
-#: closed_lowres/raw twins: the closed feet's body prior 1.1 mm above the truth, the raw 0.2).
-#: Without them (twin diagnostic, with :func:`rounded_off` in): twins 3.17 -> 3.10 mm,
-#: correspondence closed 6.45 -> 6.38, raw 5.56 -> 5.56 mm (5 mm: 3.11, 8 mm: 3.08, 15 mm: 3.11).
-SOLE_UNDERSIDE_M = 0.01
-
-
-def sole_undersides(template: Template) -> np.ndarray:
-    """(n,) bool: the template's foot vertices less than :data:`SOLE_UNDERSIDE_M` above its soles
-    whose normals point down (more than 60° from the horizontal)."""
-    feet = template.part_mask("foot_L") | template.part_mask("foot_R")
-    V = np.asarray(template.V, np.float64)
-    N = vertex_normals(V, np.asarray(template.F, np.int64))
-    return feet & (V[:, 1] < V[feet, 1].min() + SOLE_UNDERSIDE_M) & (N[:, 1] < -0.5)
-
-
 def sole_band(template: Template) -> np.ndarray:
     """(n,) bool: the template's foot vertices less than :data:`SOLE_BAND_M` above its soles."""
     feet = template.part_mask("foot_L") | template.part_mask("foot_R")
@@ -642,8 +623,7 @@ def initial_body(
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
-            data_mask=fit_data_mask(ops, options.fists, toes_take_data(index))
-            & ~sole_undersides(tpl),
+            data_mask=fit_data_mask(ops, options.fists, toes_take_data(index)),
             max_distance=max_distance,
             marker_floor=floor,
             vertex_weight=vw, measure=False, **options.kwargs(),

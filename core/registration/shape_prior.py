@@ -344,6 +344,7 @@ class PriorOptions:
     floor_y: float | None = None
     hand_length: bool = False
     foot_length: bool = False
+    sole_data: bool = True
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -677,6 +678,26 @@ def _bone_length_rows(
     return np.array(J_all), np.array(r_all)
 
 
+#: height (metres) above the template's soles below which its feet's downward faces take no
+#: data without ``fit_body_prior(sole_data=)`` (:func:`sole_undersides`): booth software cuts
+#: the soles flat 3-8 mm up (or fuses them with a floor plate), a raw scan's floor contact band
+#: is cut or in shadow. The markerless fit's soft-marker round leaves them out
+#: (``core.matching.markerless``): there the cut plane's rows lifted a closed mesh's feet.
+SOLE_UNDERSIDE_M = 0.01
+
+
+def sole_undersides(n: int) -> np.ndarray:
+    """(n,) bool: the template's foot vertices less than :data:`SOLE_UNDERSIDE_M` above its soles
+    whose normals point down (more than 60° from the horizontal); all False for another mesh."""
+    tpl = load_template()
+    if n != tpl.n_vertices:
+        return np.zeros(n, bool)
+    feet = tpl.part_mask("foot_L") | tpl.part_mask("foot_R")
+    V = np.asarray(tpl.V, np.float64)
+    N = vertex_normals(V, np.asarray(tpl.F, np.int64))
+    return feet & (V[:, 1] < V[feet, 1].min() + SOLE_UNDERSIDE_M) & (N[:, 1] < -0.5)
+
+
 def feet_sides(n: int) -> tuple[np.ndarray, np.ndarray]:
     """(n,) int8 toe sides and foot sides of the template (1 left, 2 right, 0 elsewhere;
     :func:`core.registration.correspondence.other_foot_matches`); zeros for another mesh."""
@@ -730,6 +751,7 @@ def fit_body_prior(
     floor_y: float | None = None,
     hand_length: bool = False,
     foot_length: bool = False,
+    sole_data: bool = True,
     measure: bool = True,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
@@ -819,6 +841,7 @@ def fit_body_prior(
     foot_length : with a scan, set each foot's length after the fit: its toe tip just past the
         scanned foot's end (:func:`core.registration.foot_end.correct_foot_lengths`; on coarse
         scans the toes take no data).
+    sole_data : False: the soles' downward faces (:func:`sole_undersides`) take no data.
     measure : with a scan, measure the result's ``data_cost_m`` and ``coverage`` (one more
         correspondence query; the markerless search scores its starts by them), else NaN.
     """
@@ -850,6 +873,8 @@ def fit_body_prior(
         }
     B = len(POSE_BONES)
     mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
+    if not sole_data:
+        mask = mask & ~sole_undersides(n)
     toe_side, foot_side = feet_sides(n)
     toe_guard = bool((mask & (toe_side > 0)).any())
     sub = np.zeros(n, bool)

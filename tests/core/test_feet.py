@@ -139,16 +139,16 @@ def test_sole_band_is_the_feet_lower_part():
 
 
 def test_sole_undersides_are_the_feets_downward_faces():
-    """The body prior's data leave out the soles' downward faces
-    (``core.registration.fit.sole_undersides``): foot vertices only, within
+    """The soles' downward faces (``core.registration.shape_prior.sole_undersides``, left out
+    of the data with ``fit_body_prior(sole_data=False)``): foot vertices only, within
     :data:`SOLE_UNDERSIDE_M` of the soles, their normals pointing down; the heels' backs, the
-    toes' tips and the feet's sides keep their data."""
+    toes' tips and the feet's sides keep their data; another mesh has none."""
     from core.geometry import vertex_normals
-    from core.registration.fit import SOLE_UNDERSIDE_M, sole_undersides
+    from core.registration.shape_prior import SOLE_UNDERSIDE_M, sole_undersides
     from core.template import load_template
 
     tpl = load_template()
-    m = sole_undersides(tpl)
+    m = sole_undersides(tpl.n_vertices)
     feet = tpl.part_mask("foot_L") | tpl.part_mask("foot_R")
     y = tpl.V[:, 1] - tpl.V[feet, 1].min()
     N = vertex_normals(tpl.V, np.asarray(tpl.F, np.int64))
@@ -159,25 +159,31 @@ def test_sole_undersides_are_the_feets_downward_faces():
     for x in "LR":
         for lm in ("Calcaneus_posterior", "Toe_tip", "MTP_I", "MTP_V", "Lateral_malleolus"):
             assert not m[L[f"{lm}_{x}"]], lm
+    assert not sole_undersides(100).any()
 
 
 @pytest.mark.parametrize("seed", [0, 4])
-def test_a_flat_cut_sole_does_not_lift_the_body_priors_feet(realworld_case, seed):
-    """closed_lowres-0/-4 (soles cut flat 9-10 mm above the floor): with the markers at the
-    truth's landmarks, the body prior's sole undersides end within 1 mm of the truth's height.
-    With their data (the cut plane's rows) they sat 1.7 and 2.5 mm high, the feet 0.6 and
-    2.4 mm."""
-    from core.registration.fit import fit, sole_undersides
+def test_without_the_soles_data_a_flat_cut_does_not_lift_the_feet(realworld_case, seed):
+    """closed_lowres-0/-4 (soles cut flat 9-10 mm above the floor), fitted with the markers at
+    the truth's landmarks: with ``sole_data=False`` (the markerless round's,
+    ``ROUND_SOLE_DATA``) the body prior's sole undersides end within 1 mm of the truth's height
+    (measured 0.26 / -0.05 mm); with their data the cut plane's rows lift them (1.73 / 2.53)."""
+    import core.matching.markerless as ml
+    from core.registration.fit import fit
+    from core.registration.shape_prior import sole_undersides
     from core.template import load_template
 
     tpl = load_template()
     _, scan, truth = realworld_case(seed, "closed_lowres")
     assert scan.V[:, 1].min() > 0.005  # the cut
     markers = {k: truth[i] for k, i in tpl.landmarks.items()}
-    res = fit(scan, markers, retry=False)
-    under = sole_undersides(tpl)
-    dy = float((res.body_prior.X[under, 1] - truth[under, 1]).mean())
-    assert abs(dy) < 0.001, dy  # measured 0.26 / -0.05 mm
+    under = sole_undersides(tpl.n_vertices)
+    dy = {}
+    for sole_data in (False, True):
+        res = fit(scan, markers, retry=False, prior_options={"sole_data": sole_data})
+        dy[sole_data] = float((res.body_prior.X[under, 1] - truth[under, 1]).mean())
+    assert abs(dy[False]) < 0.001 and dy[True] > dy[False] + 0.001, dy
+    assert ml.ROUND_SOLE_DATA is False
 
 
 @pytest.mark.slow
