@@ -259,9 +259,7 @@ def toes_take_data(index: ScanIndex) -> bool:
     return index.resolution_m < TOE_DATA_MAX_SPACING_M
 
 
-def closed_mesh_note(
-    radius_m: float, bridged: int, rounded: int = 0, rounded_radius_m: float = 0.0
-) -> str:
+def closed_mesh_note(radius_m: float, bridged: int, rounded: int, rounded_radius_m: float) -> str:
     """The report's note on a hole-filled closed mesh (its concavities bridged by a ball of
     ``radius_m`` metres; ``bridged`` template vertices under the bridges; ``rounded`` vertices
     of convex detail narrower than an inner ball of ``rounded_radius_m``)."""
