@@ -257,11 +257,9 @@ def _ply_header(head: bytes, what: str) -> tuple[str, list[_Element], int]:
             f"{what}: PLY header has no 'end_header' line within the first "
             f"{_HEAD_BYTES // 1024} KiB; the file is truncated or not a PLY file"
         )
-    try:
-        text = head[: m.start()].decode("ascii")
-    except UnicodeDecodeError:
-        raise InputFormatError(f"{what}: PLY header contains non-ASCII bytes") from None
-    lines = text.splitlines()
+    # latin-1: comments may hold any bytes (UTF-8 author or software names); keywords and
+    # names are checked below
+    lines = head[: m.start()].decode("latin-1").splitlines()
     if not lines or lines[0].strip() != "ply":
         raise InputFormatError(f"{what}: a PLY file must start with the line 'ply'")
     fmt = None

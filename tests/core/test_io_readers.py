@@ -412,3 +412,17 @@ def test_binary_ply_faces_with_two_lists_and_a_scalar():
     np.testing.assert_array_equal(
         r.F, [[0, 1, 2], [2, 3, 4], [2, 4, 5], [0, 1, 2], [0, 2, 3], [0, 3, 4]]
     )
+
+
+@pytest.mark.parametrize("enc", ["utf-8", "latin-1"])
+def test_ply_header_comments_with_non_ascii_characters(enc):
+    """Scanner software writes author and product names in comments (Artec, MeshLab users)."""
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 4]])
+    for fmt in ("ascii", "binary_little_endian"):
+        data = ply_bytes(SQUARE_V, F, fmt=fmt)
+        comment = "comment Créé par Müller, Artec Studio © 2024\n".encode(enc)
+        data = data.replace(b"ply\n", b"ply\n" + comment, 1)
+        r = read_mesh(data, "ply")
+        np.testing.assert_allclose(r.V, SQUARE_V)
+        np.testing.assert_array_equal(r.F, F)
+        assert inspect_mesh_header(data, "ply")["n_faces"] == 3
