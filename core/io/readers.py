@@ -10,6 +10,8 @@ Decisions
   many vertices are affected and the first one; nothing is silently dropped.
 - **Confidence** must lie in [0, 1]; values outside by at most 1e-6 (round-off) are clipped,
   anything further out (or NaN) is an :class:`InputFormatError` asking to rescale the property.
+  A PLY ``quality`` property (MeshLab's per-vertex scalar of any meaning: curvature, Poisson
+  density, scanner intensity) is read as confidence only when it lies in [0, 1], else ignored.
 - **Polygons** of any size are fan-triangulated ``(0, i, i+1)``; faces with < 3 corners are
   dropped.
 - **Limits** (``max_vertices``, ``max_faces``) are checked from the header (PLY, binary STL, NPZ)
@@ -639,6 +641,8 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
     for cname in _CONF_NAMES:
         if cname in vert:
             conf = np.asarray(vert[cname], dtype=np.float64)
+            if cname == "quality" and not _unit_interval(conf):
+                conf = None  # not a confidence (module docstring)
             break
     colors = None
     for names in (
@@ -1426,6 +1430,11 @@ def _check_nonfinite(V: np.ndarray, what: str) -> None:
             n_nonfinite=nb,
             first_index=first,
         )
+
+
+def _unit_interval(c: np.ndarray) -> bool:
+    """Whether every value lies in [0, 1] (up to round-off), none NaN."""
+    return bool(np.all((c >= -_CONF_TOL) & (c <= 1 + _CONF_TOL)))
 
 
 def _finish(raw: RawMesh, what: str) -> RawMesh:

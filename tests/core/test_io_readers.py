@@ -426,3 +426,17 @@ def test_ply_header_comments_with_non_ascii_characters(enc):
         np.testing.assert_allclose(r.V, SQUARE_V)
         np.testing.assert_array_equal(r.F, F)
         assert inspect_mesh_header(data, "ply")["n_faces"] == 3
+
+
+def test_ply_quality_outside_the_unit_interval_is_not_confidence():
+    """MeshLab writes a per-vertex ``quality`` of any meaning (curvature, density): outside
+    [0, 1] it is ignored, not refused; ``confidence`` itself stays strict."""
+    q = np.array([0.0, 3.5, 17.0, 250.0, 1.0], np.float32)
+    r = read_mesh(ply_bytes(SQUARE_V, extra={"quality": q}), "ply")
+    assert r.confidence is None
+    np.testing.assert_allclose(r.V, SQUARE_V)
+    q01 = np.array([0.0, 0.25, 0.5, 0.75, 1.0], np.float32)
+    r = read_mesh(ply_bytes(SQUARE_V, extra={"quality": q01}), "ply")
+    np.testing.assert_allclose(r.confidence, q01)
+    with pytest.raises(InputFormatError, match=r"\[0, 1\]"):
+        read_mesh(ply_bytes(SQUARE_V, extra={"confidence": q}), "ply")
