@@ -651,11 +651,9 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
         ("diffuse_red", "diffuse_green", "diffuse_blue"),
     ):
         if all(c in vert for c in names):
-            cols = [np.asarray(vert[c]) for c in names]
-            if cols[0].dtype.kind == "f":
-                colors = np.clip(np.round(np.stack(cols, 1) * 255.0), 0, 255).astype(np.uint8)
-            else:
-                colors = np.clip(np.stack(cols, 1), 0, 255).astype(np.uint8)
+            declared = next(np.dtype(p.type) for e in elements if e.name == "vertex"
+                            for p in e.props if p.name == names[0])  # fmt: skip
+            colors = _ply_colors(np.stack([vert[c] for c in names], 1), declared)
             break
     F = None
     face = parsed.get("face")
@@ -671,6 +669,18 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
             raise InputFormatError(f"{what}: PLY face indices must be integers")
         F = _fan(counts, flat)
     return _finish(RawMesh(V=V, F=F, normals=normals, confidence=conf, colors=colors), what)
+
+
+def _ply_colors(rgb: np.ndarray, declared: np.dtype) -> np.ndarray:
+    """(n, 3) uint8 colours from PLY colour properties of the ``declared`` type: floats in
+    [0, 1]; 8-bit integers; wider integers holding values above 255 are 16-bit colours
+    (0-65535, as LAS/E57 point clouds converted by PDAL or CloudCompare carry them)."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    if declared.kind == "f":
+        rgb = rgb * 255.0
+    elif declared.itemsize > 1 and rgb.max(initial=0.0) > 255.0:
+        rgb = rgb * (255.0 / 65535.0)
+    return np.clip(np.round(rgb), 0, 255).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------------------------

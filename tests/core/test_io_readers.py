@@ -440,3 +440,26 @@ def test_ply_quality_outside_the_unit_interval_is_not_confidence():
     np.testing.assert_allclose(r.confidence, q01)
     with pytest.raises(InputFormatError, match=r"\[0, 1\]"):
         read_mesh(ply_bytes(SQUARE_V, extra={"confidence": q}), "ply")
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_big_endian"])
+def test_ply_16_bit_colours_scaled_to_8_bit(fmt):
+    """LAS/E57 point clouds converted to PLY (PDAL, CloudCompare) carry ushort colours."""
+    head = (
+        f"ply\nformat {fmt} 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+        "property float z\nproperty ushort red\nproperty ushort green\nproperty ushort blue\n"
+        "end_header\n"
+    ).encode()
+
+    def ply(rgb):
+        if fmt == "ascii":
+            rows = [" ".join(map(str, [*v, *c])) for v, c in zip(SQUARE_V, rgb, strict=True)]
+            return head + ("\n".join(rows) + "\n").encode()
+        rec = np.zeros(5, dtype=[("v", ">f4", 3), ("c", ">u2", 3)])
+        rec["v"], rec["c"] = SQUARE_V, rgb
+        return head + rec.tobytes()
+
+    rgb8 = np.random.default_rng(3).integers(0, 256, (5, 3))
+    rgb8[0] = 255
+    np.testing.assert_array_equal(read_mesh(ply(rgb8 * 257), "ply").colors, rgb8)  # 16-bit
+    np.testing.assert_array_equal(read_mesh(ply(rgb8), "ply").colors, rgb8)  # 8-bit values
