@@ -13,7 +13,7 @@ Decisions
   A PLY ``quality`` property (MeshLab's per-vertex scalar of any meaning: curvature, Poisson
   density, scanner intensity) is read as confidence only when it lies in [0, 1], else ignored.
 - **Polygons** of any size are fan-triangulated ``(0, i, i+1)``; faces with < 3 corners are
-  dropped.
+  dropped. A PLY ``tristrips`` element (strips separated by -1) adds its triangles.
 - **Limits** (``max_vertices``, ``max_faces``) are checked from the header (PLY, binary STL, NPZ)
   before the data are parsed, and from line counts for text formats.
 - **NPZ** inflates nothing unchecked: only the scan's arrays (``vertices``, ``faces``,
@@ -617,14 +617,14 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
         pos = 0
         for el in elements:
             vals, pos = _ascii_element(lines, pos, el, what)
-            if el.name in ("vertex", "face"):
+            if el.name in ("vertex", "face", "tristrips"):
                 parsed[el.name] = vals
     else:
         end = "<" if fmt == "binary_little_endian" else ">"
         mv = memoryview(data)
         for el in elements:
             vals, off = _binary_element(mv, off, el, end, what)
-            if el.name in ("vertex", "face"):
+            if el.name in ("vertex", "face", "tristrips"):
                 parsed[el.name] = vals
     vert = parsed["vertex"]
     missing = [c for c in "xyz" if c not in vert]
@@ -655,20 +655,48 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
                             for p in e.props if p.name == names[0])  # fmt: skip
             colors = _ply_colors(np.stack([vert[c] for c in names], 1), declared)
             break
-    F = None
-    face = parsed.get("face")
-    if face is not None and elements and any(e.name == "face" and e.count for e in elements):
-        key = next((k for k in ("vertex_indices", "vertex_index") if k in face), None)
-        if key is None or not isinstance(face[key], tuple):
-            raise InputFormatError(
-                f"{what}: PLY face element has no list property 'vertex_indices' "
-                "(or 'vertex_index')"
-            )
-        counts, flat = face[key]
-        if flat.dtype.kind == "f" and np.any(flat != np.round(flat)):
-            raise InputFormatError(f"{what}: PLY face indices must be integers")
-        F = _fan(counts, flat)
+    tris = []
+    for el, triangulate in (("face", _fan), ("tristrips", _strips)):
+        if parsed.get(el) is not None and any(e.name == el and e.count for e in elements):
+            tris.append(triangulate(*_ply_indices(parsed[el], el, what)))
+    F = np.concatenate(tris) if tris else None
     return _finish(RawMesh(V=V, F=F, normals=normals, confidence=conf, colors=colors), what)
+
+
+def _ply_indices(vals: dict[str, Any], el: str, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """The ``vertex_indices`` (or ``vertex_index``) list of a PLY ``face`` or ``tristrips``
+    element as a ragged array (counts, flat)."""
+    key = next((k for k in ("vertex_indices", "vertex_index") if k in vals), None)
+    if key is None or not isinstance(vals[key], tuple):
+        raise InputFormatError(
+            f"{what}: PLY {el} element has no list property 'vertex_indices' (or 'vertex_index')"
+        )
+    counts, flat = vals[key]
+    if flat.dtype.kind == "f" and np.any(flat != np.round(flat)):
+        raise InputFormatError(f"{what}: PLY {el} indices must be integers")
+    return counts, flat
+
+
+def _strips(counts: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Triangles (m, 3) int64 of triangle strips given as a ragged array (PLY ``tristrips``).
+
+    Each row holds strips separated by -1; strip ``(v0, v1, v2, v3, ...)`` gives ``(v0, v1,
+    v2)``, ``(v2, v1, v3)``, ... (every second triangle reversed, so all keep the first's
+    winding). The degenerate triangles that join strips are dropped.
+    """
+    flat = np.asarray(flat).reshape(-1)
+    seq = flat.astype(np.int64)
+    if flat.dtype.kind == "u":  # -1 stored in an unsigned type
+        seq[seq == np.iinfo(flat.dtype).max] = -1
+    seq = np.insert(seq, np.cumsum(counts), -1)  # a row's end ends its strip
+    sep = seq < 0
+    idx = np.arange(len(seq))
+    rank = idx - np.maximum.accumulate(np.where(sep, idx, -1)) - 1  # place in its strip
+    j = np.flatnonzero(~(sep[:-2] | sep[1:-1] | sep[2:]))
+    a, b, c = seq[j], seq[j + 1], seq[j + 2]
+    odd = rank[j] % 2 == 1
+    T = np.stack([np.where(odd, b, a), np.where(odd, a, b), c], axis=1)
+    return T[(a != b) & (b != c) & (a != c)]
 
 
 def _ply_colors(rgb: np.ndarray, declared: np.dtype) -> np.ndarray:

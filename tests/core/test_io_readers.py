@@ -463,3 +463,34 @@ def test_ply_16_bit_colours_scaled_to_8_bit(fmt):
     rgb8[0] = 255
     np.testing.assert_array_equal(read_mesh(ply(rgb8 * 257), "ply").colors, rgb8)  # 16-bit
     np.testing.assert_array_equal(read_mesh(ply(rgb8), "ply").colors, rgb8)  # 8-bit values
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+def test_ply_tristrips_give_triangles_with_one_winding(fmt):
+    """A ``tristrips`` element (older Cyberware/VRIP scans, some exporters): strips separated
+    by -1, joined by degenerate triangles; it was read as a point cloud."""
+    # a ribbon of 2 x 5 vertices in the z = 0 plane: bottom row 0..4, top row 5..9
+    V = np.array([[x, y, 0.0] for y in (0, 1) for x in range(5)])
+    ribbon = [0, 5, 1, 6, 2, 7, -1, 2, 2, 2, 7, 3, 8, 4, 9]  # two strips, degenerate lead-in
+    head = (
+        f"ply\nformat {fmt} 1.0\nelement vertex 10\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        "element tristrips 1\nproperty list int int vertex_indices\nend_header\n"
+    ).encode()
+    face = [4, 0, 1, 2, 3]  # a (degenerate, collinear) quad: faces and strips together
+    if fmt == "ascii":
+        rows = [" ".join(map(str, v)) for v in V] + [" ".join(map(str, face))]
+        body = ("\n".join([*rows, " ".join(map(str, [len(ribbon), *ribbon]))]) + "\n").encode()
+    else:
+        body = V.astype("<f4").tobytes() + bytes([4]) + np.array(face[1:], "<i4").tobytes()
+        body += np.array([len(ribbon), *ribbon], "<i4").tobytes()
+    r = read_mesh(head + body, "ply")
+    strips = r.F[2:]
+    assert len(strips) == 8  # one triangle per quad cell's half: 4 cells x 2
+    assert {tuple(sorted(t)) for t in strips} == {
+        tuple(sorted(t)) for i in range(4) for t in ((i, i + 1, i + 5), (i + 1, i + 5, i + 6))
+    }
+    e1, e2 = V[strips[:, 1]] - V[strips[:, 0]], V[strips[:, 2]] - V[strips[:, 0]]
+    normal_z = np.cross(e1, e2)[:, 2]
+    assert np.all(normal_z < 0) or np.all(normal_z > 0)  # one winding
+    np.testing.assert_array_equal(r.F[:2], [[0, 1, 2], [0, 2, 3]])
