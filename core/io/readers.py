@@ -717,6 +717,7 @@ def _ply_colors(rgb: np.ndarray, declared: np.dtype) -> np.ndarray:
 _OBJ_V = re.compile(rb"^[ \t]*v[ \t]+([^\r\n]*)", re.M)
 _OBJ_VN = re.compile(rb"^[ \t]*vn[ \t]+([^\r\n]*)", re.M)
 _OBJ_F = re.compile(rb"^[ \t]*f[ \t]+([^\r\n]*)", re.M)
+_OBJ_CONTINUATION = re.compile(rb"\\[ \t]*\r?\n")
 
 
 def _read_obj(
@@ -730,6 +731,8 @@ def _read_obj(
 ) -> RawMesh:
     """OBJ; with ``files`` (the MTL and images beside it) a ``map_Kd`` texture or ``Kd``
     colour gives the vertex colours (``strict``: a named file that is missing is an error)."""
+    if b"\\" in data:  # a line ending in a backslash continues on the next
+        data = _OBJ_CONTINUATION.sub(b" ", data)
     v_lines = _OBJ_V.findall(data)
     f_lines = _OBJ_F.findall(data)
     _check_limits(len(v_lines), len(f_lines), max_vertices, max_faces, what)

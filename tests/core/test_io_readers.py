@@ -494,3 +494,13 @@ def test_ply_tristrips_give_triangles_with_one_winding(fmt):
     normal_z = np.cross(e1, e2)[:, 2]
     assert np.all(normal_z < 0) or np.all(normal_z > 0)  # one winding
     np.testing.assert_array_equal(r.F[:2], [[0, 1, 2], [0, 2, 3]])
+
+
+@pytest.mark.parametrize("eol", ["\n", "\r\n"])
+def test_obj_backslash_line_continuations(eol):
+    """The OBJ spec lets a line ending in a backslash continue on the next (long polygons)."""
+    lines = ["v 0 0 0", "v 1 0 \\", "  0", "v 1 1 0", "v 0 1 0",
+             "f 1 2 \\", "  3 4", "f 1 2\\", " 4"]  # fmt: skip
+    r = read_mesh(eol.join(lines).encode() + eol.encode(), "obj")
+    np.testing.assert_allclose(r.V, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(r.F, [[0, 1, 2], [0, 2, 3], [0, 1, 3]])
