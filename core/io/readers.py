@@ -730,7 +730,9 @@ def _read_obj(
     max_pixels: int = MAX_TEXTURE_PIXELS,
 ) -> RawMesh:
     """OBJ; with ``files`` (the MTL and images beside it) a ``map_Kd`` texture or ``Kd``
-    colour gives the vertex colours (``strict``: a named file that is missing is an error)."""
+    colour gives the vertex colours (``strict``: a named file that is missing is an error).
+    Per-vertex colours (``v x y z r g b``) give way to a texture only, never to a flat ``Kd``
+    (exporters name a default material, e.g. Blender's grey ``Kd 0.8 0.8 0.8``)."""
     if b"\\" in data:  # a line ending in a backslash continues on the next
         data = _OBJ_CONTINUATION.sub(b" ", data)
     v_lines = _OBJ_V.findall(data)
@@ -817,7 +819,7 @@ def _read_obj(
             tex, texture = _obj_material_colours(
                 data, block, ftok, vi, nv, files, strict, what, max_pixels
             )
-            if tex is not None:
+            if tex is not None and (colors is None or texture is not None):
                 colors = tex
             if texture is not None:  # per triangle of the fan, as F below
                 tri = _fan(ftok, np.arange(len(vi)))

@@ -504,3 +504,20 @@ def test_obj_backslash_line_continuations(eol):
     r = read_mesh(eol.join(lines).encode() + eol.encode(), "obj")
     np.testing.assert_allclose(r.V, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     np.testing.assert_array_equal(r.F, [[0, 1, 2], [0, 2, 3], [0, 1, 3]])
+
+
+def test_obj_vertex_colours_kept_over_a_flat_material_colour(tmp_path):
+    """MeshLab/Blender write per-vertex colours and name a default material beside them
+    (``Kd 0.8 0.8 0.8``): the material's flat grey replaced every vertex's colour."""
+    rgb = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0]])
+    V = SQUARE_V[:4]
+    vs = "".join(f"v {x} {y} {z} {r / 255} {g / 255} {b / 255}\n" for (x, y, z), (r, g, b)
+                 in zip(V, rgb, strict=True))  # fmt: skip
+    (tmp_path / "scan.mtl").write_text("newmtl Material\nKa 1 1 1\nKd 0.8 0.8 0.8\nd 1\n")
+    p = tmp_path / "scan.obj"
+    p.write_text(f"mtllib scan.mtl\n{vs}usemtl Material\nf 1 2 3\nf 1 3 4\n")
+    np.testing.assert_array_equal(read_mesh(p).colors, rgb)
+    # without vertex colours the material's colour is still the scan's
+    p.write_text("mtllib scan.mtl\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in V)
+                 + "usemtl Material\nf 1 2 3\nf 1 3 4\n")  # fmt: skip
+    np.testing.assert_array_equal(read_mesh(p).colors, [[204, 204, 204]] * 4)
