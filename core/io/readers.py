@@ -1203,28 +1203,51 @@ def _merge_vertices(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return P[first[order]], rank[inv.ravel()]
 
 
+def _stl_triangles(head: bytes, size: int, what: str) -> int | None:
+    """Triangles of a binary STL (from its first bytes ``head`` and size), None for ASCII.
+
+    Binary when the size matches the declared count. Else ASCII when the file starts with
+    ``solid`` and its first 4 KiB are text (a binary count below 2^24 holds a NUL byte; many
+    binary headers start with "solid" too). Else binary all the same: with bytes beyond the
+    declared triangles (padding some exporters add: ignored), or with a count of 0 over whole
+    50-byte records (a streaming writer that never wrote the count: the records are read).
+    """
+    text = head[:4096]
+    ascii_ = b"\0" not in text and text.lstrip()[:5].lower() == b"solid"
+    if size < 84:
+        if ascii_:
+            return None
+        raise InputFormatError(f"{what}: not an STL file ({size} bytes, no 'solid' keyword)")
+    n = int(np.frombuffer(head, "<u4", 1, 80)[0])
+    if 84 + 50 * n == size:
+        return n
+    if ascii_:
+        return None
+    if n == 0 and (size - 84) % 50 == 0:
+        return (size - 84) // 50
+    if 84 + 50 * n < size:
+        return n
+    raise InputFormatError(
+        f"{what}: binary STL declares {n:,} triangles ({84 + 50 * n:,} bytes) but the "
+        f"file has {size:,} bytes; the upload is truncated or corrupt",
+        n_faces=n,
+    )
+
+
+_STL_VERTEX = re.compile(rb"^[ \t]*vertex[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)", re.M | re.I)
+
+
 def _read_stl(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
-    size = len(data)
-    binary = False
-    if size >= 84:
-        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        binary = 84 + 50 * n == size
-        if not binary and not data.lstrip()[:5].lower() == b"solid":
-            raise InputFormatError(
-                f"{what}: binary STL declares {n:,} triangles ({84 + 50 * n:,} bytes) but the "
-                f"file has {size:,} bytes; the upload is truncated or corrupt",
-                n_faces=n,
-            )
-    if binary:
+    """Binary or ASCII STL (keywords in any case); coincident corners are merged."""
+    n = _stl_triangles(data[:4096], len(data), what)
+    if n is not None:
         _check_limits(0, n, None, max_faces, what)
         _check_limits(3 * n, 0, max_vertices, None, what + " (before merging duplicates)")
         dt = np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
         rec = np.frombuffer(data, dt, n, 84)
         P = rec["v"].reshape(-1, 3).astype(np.float64)
     else:
-        if not data.lstrip()[:5].lower() == b"solid":
-            raise InputFormatError(f"{what}: not an STL file (no 'solid' keyword)")
-        found = re.findall(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", data)
+        found = _STL_VERTEX.findall(data)
         if len(found) % 3:
             raise InputFormatError(
                 f"{what}: ASCII STL has {len(found)} 'vertex' lines, not a multiple of 3; "
@@ -1689,17 +1712,9 @@ def inspect_mesh_header(
             has_confidence=any(c in names for c in _CONF_NAMES),
         )
     elif f == "stl":
-        n = int(np.frombuffer(head, "<u4", 1, 80)[0]) if len(head) >= 84 else -1
-        if n >= 0 and 84 + 50 * n == size:
-            nf = n
-        else:
-            data = _read_all(path_or_bytes)
-            if not data.lstrip()[:5].lower() == b"solid":
-                raise InputFormatError(
-                    f"{what}: binary STL size does not match its triangle count; the upload is "
-                    "truncated or corrupt"
-                )
-            nf = len(re.findall(rb"\bfacet\b", data))
+        nf = _stl_triangles(head, size, what)
+        if nf is None:
+            nf = len(re.findall(rb"\bfacet\b", _read_all(path_or_bytes), re.I))
         out = dict(
             format="stl", n_vertices=3 * nf, n_faces=nf, has_normals=False, has_confidence=False
         )

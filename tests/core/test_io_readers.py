@@ -521,3 +521,39 @@ def test_obj_vertex_colours_kept_over_a_flat_material_colour(tmp_path):
     p.write_text("mtllib scan.mtl\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in V)
                  + "usemtl Material\nf 1 2 3\nf 1 3 4\n")  # fmt: skip
     np.testing.assert_array_equal(read_mesh(p).colors, [[204, 204, 204]] * 4)
+
+
+def _stl_binary(tri: np.ndarray, header: bytes, count: int) -> bytes:
+    rec = np.zeros(len(tri), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    rec["v"] = tri
+    return header.ljust(80, b" ") + np.array([count], "<u4").tobytes() + rec.tobytes()
+
+
+def test_binary_stl_with_a_solid_header_padding_or_no_count(tpl):
+    """Binary STLs whose header starts with "solid" (SolidWorks and others) and that carry
+    bytes past the declared triangles, or a count of 0 (a streaming writer), are read; a
+    truncated one is refused as truncated (it was 'no triangles', read as ASCII)."""
+    V, F = tpl
+    tri = V[F[:500]].astype(np.float32)
+    for header in (b"solid part exported by SolidWorks", b"Artec binary STL"):
+        for data in (
+            _stl_binary(tri, header, len(tri)) + b"\x00\x00",  # padding
+            _stl_binary(tri, header, len(tri)) + b"\n",
+            _stl_binary(tri, header, 0),  # count never written
+        ):
+            r = read_mesh(data, "stl")
+            np.testing.assert_allclose(r.V[r.F], tri, atol=1e-6)
+            assert inspect_mesh_header(data, "stl")["n_faces"] == len(tri)
+        with pytest.raises(InputFormatError, match="truncated"):
+            read_mesh(_stl_binary(tri, header, len(tri))[:-30], "stl")
+        with pytest.raises(InputFormatError, match="truncated"):
+            inspect_mesh_header(_stl_binary(tri, header, len(tri))[:-30], "stl")
+
+
+def test_ascii_stl_keywords_in_upper_case(tpl):
+    V, F = tpl
+    m = trimesh.Trimesh(V, F[:300], process=False)
+    text = m.export(file_type="stl_ascii")
+    r = read_mesh(text.upper().encode(), "stl")
+    np.testing.assert_allclose(r.V[r.F], V[F[:300]], atol=1e-5)
+    assert inspect_mesh_header(text.upper().encode(), "stl")["n_faces"] == 300
