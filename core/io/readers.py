@@ -58,6 +58,7 @@ _EXT = {
 }
 _HEAD_BYTES = 1 << 16
 _CONF_NAMES = ("confidence", "scalar_confidence", "quality")
+_PLY_NORMALS = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))  # the latter: PCL
 _CONF_TOL = 1e-6
 
 # --------------------------------------------------------------------------------------------
@@ -635,8 +636,9 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
         )
     V = np.stack([np.asarray(vert[c], dtype=np.float64) for c in "xyz"], axis=1)
     normals = None
-    if all(c in vert for c in ("nx", "ny", "nz")):
-        normals = np.stack([np.asarray(vert[c], dtype=np.float64) for c in ("nx", "ny", "nz")], 1)
+    nnames = next((ns for ns in _PLY_NORMALS if all(c in vert for c in ns)), None)
+    if nnames is not None:
+        normals = np.stack([np.asarray(vert[c], dtype=np.float64) for c in nnames], 1)
     conf = None
     for cname in _CONF_NAMES:
         if cname in vert:
@@ -1708,7 +1710,7 @@ def inspect_mesh_header(
             format="ply",
             n_vertices=nv,
             n_faces=nf,
-            has_normals={"nx", "ny", "nz"} <= names,
+            has_normals=any(set(ns) <= names for ns in _PLY_NORMALS),
             has_confidence=any(c in names for c in _CONF_NAMES),
         )
     elif f == "stl":

@@ -557,3 +557,13 @@ def test_ascii_stl_keywords_in_upper_case(tpl):
     r = read_mesh(text.upper().encode(), "stl")
     np.testing.assert_allclose(r.V[r.F], V[F[:300]], atol=1e-5)
     assert inspect_mesh_header(text.upper().encode(), "stl")["n_faces"] == 300
+
+
+def test_ply_normals_named_normal_x_as_pcl_writes_them():
+    """PCL (and tools built on it) name PLY normals normal_x/normal_y/normal_z."""
+    N = np.random.default_rng(2).normal(size=(5, 3)).astype(np.float32)
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    extra = {"normal_x": N[:, 0], "normal_y": N[:, 1], "normal_z": N[:, 2]}
+    data = ply_bytes(SQUARE_V, extra=extra)
+    np.testing.assert_allclose(read_mesh(data, "ply").normals, N)
+    assert inspect_mesh_header(data, "ply")["has_normals"]
