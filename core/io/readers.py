@@ -640,9 +640,10 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
     if nnames is not None:
         normals = np.stack([np.asarray(vert[c], dtype=np.float64) for c in nnames], 1)
     conf = None
+    lower = {k.lower(): k for k in vert}  # CloudCompare keeps a scalar field's case
     for cname in _CONF_NAMES:
-        if cname in vert:
-            conf = np.asarray(vert[cname], dtype=np.float64)
+        if cname in lower:
+            conf = np.asarray(vert[lower[cname]], dtype=np.float64)
             if cname == "quality" and not _unit_interval(conf):
                 conf = None  # not a confidence (module docstring)
             break
@@ -1711,7 +1712,7 @@ def inspect_mesh_header(
             n_vertices=nv,
             n_faces=nf,
             has_normals=any(set(ns) <= names for ns in _PLY_NORMALS),
-            has_confidence=any(c in names for c in _CONF_NAMES),
+            has_confidence=any(c.lower() in _CONF_NAMES for c in names),
         )
     elif f == "stl":
         nf = _stl_triangles(head, size, what)

@@ -567,3 +567,11 @@ def test_ply_normals_named_normal_x_as_pcl_writes_them():
     data = ply_bytes(SQUARE_V, extra=extra)
     np.testing.assert_allclose(read_mesh(data, "ply").normals, N)
     assert inspect_mesh_header(data, "ply")["has_normals"]
+
+
+def test_ply_confidence_name_in_any_case():
+    """CloudCompare writes a scalar field "Confidence" as ``scalar_Confidence``."""
+    c = np.array([0.1, 0.5, 0.9, 0.2, 1.0], np.float32)
+    data = ply_bytes(SQUARE_V, extra={"scalar_Confidence": c})
+    np.testing.assert_allclose(read_mesh(data, "ply").confidence, c)
+    assert inspect_mesh_header(data, "ply")["has_confidence"]
