@@ -1434,18 +1434,55 @@ def _read_npz(data: bytes, what: str, max_vertices: int | None, max_faces: int |
 # XYZ / PTS
 
 
+_XYZ_NORMALS = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+_XYZ_COLORS = (("r", "g", "b"), ("red", "green", "blue"), ("rf", "gf", "bf"))  # rf: floats
+
+
+def _xyz_columns(tab: np.ndarray, names: list[str] | None) -> tuple[int | None, int | None]:
+    """First columns of the normals and of the colours (None: absent) of a text point cloud's
+    table (n, w), from its header's column names when they name every column, else from the
+    values: normals are a unit-length triple (or 0 0 0), colours a triple of integers in
+    0-255 or of values in [0, 1]; of 7 columns, integers after a 4th (PTS: x y z intensity r g
+    b) come first."""
+    w = tab.shape[1]
+    if names is not None and len(names) == w:
+        named = {tuple(names[i : i + 3]): i for i in range(w - 3, 2, -1)}  # the first wins
+        ni = next((named[t] for t in _XYZ_NORMALS if t in named), None)
+        return ni, next((named[t] for t in _XYZ_COLORS if t in named), None)
+
+    def unit(c: np.ndarray) -> bool:
+        r = np.linalg.norm(c, axis=1)
+        return bool(np.all((np.abs(r - 1.0) < 1e-2) | (r == 0.0)) and np.any(r > 0.0))
+
+    def colour(c: np.ndarray, floats: bool) -> bool:
+        return bool(np.all((c >= 0) & (c <= 255) & (c == np.round(c)))) or (
+            floats and bool(np.all((c >= 0) & (c <= 1)))
+        )
+
+    normals = next((i for i in range(3, w - 2) if unit(tab[:, i : i + 3])), None)
+    # (first column, floats allowed); PTS colours are 8-bit integers
+    tries = [(4, False), (3, True), (4, True)] if w == 7 else [(i, True) for i in range(3, w - 2)]
+    colors = next((i for i, floats in tries if (normals is None or abs(i - normals) >= 3)
+                   and colour(tab[:, i : i + 3], floats)), None)  # fmt: skip
+    return normals, colors
+
+
 def _read_xyz(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
+    """Text point cloud: ``x y z`` then, by the header's column names (CloudCompare's
+    ``//X,Y,Z,R,G,B,Nx,Ny,Nz``) or else by their values, normals and colours in any order."""
     text = data.replace(b",", b" ").replace(b";", b" ")
-    lines = [
-        ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith((b"#", b"//"))
-    ]
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    names = None  # the last comment or header row before the first point
+    while lines and (lines[0].lstrip()[:1].isalpha() or lines[0].lstrip()[:1] in (b"#", b"/")):
+        names = lines.pop(0).decode("latin-1").lstrip("#/ \t").lower().split()
+    lines = [ln for ln in lines if not ln.lstrip().startswith((b"#", b"//"))]
     if lines and len(lines[0].split()) == 1:  # PTS point count line
         lines = lines[1:]
     _check_limits(len(lines), 0, max_vertices, None, what)
     if not lines:
         raise InputFormatError(f"{what}: point cloud file has no points")
-    if lines[0].lstrip()[:1].isalpha():  # header row such as "x y z"
-        lines = lines[1:]
+    if lines[0].lstrip()[:1].isalpha():  # header row such as "x y z" after the count
+        names = lines.pop(0).decode("latin-1").lower().split()
     ntok = _tokens_per_line(lines)
     w = int(ntok[0]) if len(ntok) else 0
     bad = np.flatnonzero(ntok != w)
@@ -1459,25 +1496,13 @@ def _read_xyz(data: bytes, what: str, max_vertices: int | None, max_faces: int |
         raise InputFormatError(f"{what}: point lines need at least 3 values (x y z), got {w}")
     tab = _parse_floats(b"\n".join(lines), what).reshape(len(lines), w)
     V = tab[:, :3].copy()
-    normals = colors = None
-
-    def as_colors(c: np.ndarray) -> np.ndarray | None:
-        if np.all((c >= 0) & (c <= 255)) and np.all(c == np.round(c)):
-            return c.astype(np.uint8)
-        return None
-
-    if w == 6:
-        extra = tab[:, 3:6]
-        nrm = np.linalg.norm(extra, axis=1)
-        if np.all(np.abs(nrm - 1.0) < 1e-2):
-            normals = extra.copy()
-        else:
-            colors = as_colors(extra)
-    elif w == 7:  # PTS: x y z intensity r g b
-        colors = as_colors(tab[:, 4:7])
-    elif w >= 9:  # x y z nx ny nz r g b
-        normals = tab[:, 3:6].copy()
-        colors = as_colors(tab[:, 6:9])
+    ni, ci = _xyz_columns(tab, names)
+    normals = None if ni is None else tab[:, ni : ni + 3].copy()
+    colors = None
+    if ci is not None:
+        c = tab[:, ci : ci + 3]
+        float01 = np.all(c <= 1.0) and np.any(c != np.round(c))
+        colors = np.clip(np.round(c * 255.0 if float01 else c), 0, 255).astype(np.uint8)
     return _finish(RawMesh(V=V, normals=normals, colors=colors), what)
 
 

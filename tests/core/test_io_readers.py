@@ -575,3 +575,28 @@ def test_ply_confidence_name_in_any_case():
     data = ply_bytes(SQUARE_V, extra={"scalar_Confidence": c})
     np.testing.assert_allclose(read_mesh(data, "ply").confidence, c)
     assert inspect_mesh_header(data, "ply")["has_confidence"]
+
+
+@pytest.mark.parametrize("header", [True, False])
+def test_point_cloud_text_columns_in_cloudcompare_order(header):
+    """CloudCompare's ASCII export writes x y z, colours, scalar fields, normals (the colours
+    were read as normals and the normals as colours); float colours (0-1) were dropped."""
+    rng = np.random.default_rng(4)
+    V = rng.normal(size=(6, 3))
+    N = rng.normal(size=(6, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    rgb = rng.integers(0, 256, (6, 3))
+    rows = [f"{v[0]},{v[1]},{v[2]},{c[0]},{c[1]},{c[2]},{n[0]},{n[1]},{n[2]}"
+            for v, c, n in zip(V, rgb, N, strict=True)]  # fmt: skip
+    text = "\n".join((["//X,Y,Z,R,G,B,Nx,Ny,Nz"] if header else []) + rows) + "\n"
+    r = read_mesh(text.encode(), "xyz")
+    np.testing.assert_allclose(r.V, V)
+    np.testing.assert_allclose(r.normals, N)
+    np.testing.assert_array_equal(r.colors, rgb)
+    # colours saved as floats in [0, 1], then a scalar field
+    rows = [f"{v[0]} {v[1]} {v[2]} {c[0] / 255} {c[1] / 255} {c[2] / 255} 0.5"
+            for v, c in zip(V, rgb, strict=True)]  # fmt: skip
+    text = "\n".join((["//X Y Z Rf Gf Bf Intensity"] if header else []) + rows) + "\n"
+    r = read_mesh(text.encode(), "xyz")
+    np.testing.assert_array_equal(r.colors, rgb)
+    assert r.normals is None
