@@ -605,7 +605,16 @@ def _fan(counts: np.ndarray, flat: np.ndarray) -> np.ndarray:
     return F
 
 
-def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int | None) -> RawMesh:
+def _read_ply(
+    data: bytes,
+    what: str,
+    max_vertices: int | None,
+    max_faces: int | None,
+    files: Files | None = None,
+    max_pixels: int = MAX_TEXTURE_PIXELS,
+) -> RawMesh:
+    """PLY (ASCII or binary); with ``files`` (the images beside it) a texture named by a
+    ``comment TextureFile`` line gives the vertex colours (:func:`_ply_texture`)."""
     fmt, elements, off = _ply_header(data[:_HEAD_BYTES], what)
     nv, nf = _ply_counts(elements)
     _check_limits(nv, nf, max_vertices, max_faces, what)
@@ -658,12 +667,91 @@ def _read_ply(data: bytes, what: str, max_vertices: int | None, max_faces: int |
                             for p in e.props if p.name == names[0])  # fmt: skip
             colors = _ply_colors(np.stack([vert[c] for c in names], 1), declared)
             break
-    tris = []
+    tris, faces = [], None
     for el, triangulate in (("face", _fan), ("tristrips", _strips)):
         if parsed.get(el) is not None and any(e.name == el and e.count for e in elements):
-            tris.append(triangulate(*_ply_indices(parsed[el], el, what)))
+            ragged = _ply_indices(parsed[el], el, what)
+            tris.append(triangulate(*ragged))
+            faces = ragged if el == "face" else None
     F = np.concatenate(tris) if tris else None
-    return _finish(RawMesh(V=V, F=F, normals=normals, confidence=conf, colors=colors), what)
+    texture = None
+    names = _PLY_TEXTURE_FILE.findall(data[:off])
+    if files is not None and names and faces is not None and len(tris) == 1:
+        got = _ply_texture(vert, parsed["face"], faces, names, files, what, max_pixels)
+        if got is not None:
+            colors, texture = got
+    raw = RawMesh(V=V, F=F, normals=normals, confidence=conf, colors=colors, texture=texture)
+    return _finish(raw, what)
+
+
+_PLY_TEXTURE_FILE = re.compile(rb"^comment[ \t]+TextureFile[ \t]+([^\r\n]*?)[ \t]*\r?$", re.M)
+_PLY_VERTEX_UV = (("texture_u", "texture_v"), ("texture_s", "texture_t"), ("s", "t"), ("u", "v"))
+
+
+def _ply_texture(
+    vert: dict[str, Any],
+    face: dict[str, Any],
+    ragged: tuple[np.ndarray, np.ndarray],
+    names: list[bytes],
+    files: Files,
+    what: str,
+    max_pixels: int,
+) -> tuple[np.ndarray, ScanTexture] | None:
+    """Vertex colours (n, 3) uint8 and the texture mapping of a textured PLY (MeshLab,
+    Metashape), or None (no texture coordinates, or no image found).
+
+    The images are the ``comment TextureFile`` names (a face's ``texnumber`` picks one, else
+    the first); texture coordinates are the faces' ``texcoord`` lists (u v per corner) or the
+    vertices' ``texture_u``/``texture_v`` (or ``s``/``t``, ``u``/``v``), OBJ convention (v up).
+    A vertex takes the mean of its corners' bilinear samples.
+    """
+    from core.io.images import decode_image, sample_image
+
+    counts, flat = ragged
+    flat = np.asarray(flat).reshape(-1).astype(np.int64)
+    nv = len(next(iter(vert.values())))
+    if len(flat) and (flat.min() < 0 or flat.max() >= nv):
+        return None  # _finish names the bad index
+    tc = face.get("texcoord")
+    uvn = next((ns for ns in _PLY_VERTEX_UV if all(c in vert for c in ns)), None)
+    if isinstance(tc, tuple) and np.array_equal(tc[0], 2 * np.asarray(counts)):
+        uv = np.asarray(tc[1], dtype=np.float64).reshape(-1, 2)
+    elif uvn is not None:
+        uv = np.stack([np.asarray(vert[c], dtype=np.float64) for c in uvn], 1)[flat]
+    else:
+        return None
+    if not np.isfinite(uv).all():
+        raise InputFormatError(f"{what}: PLY texture coordinates must be finite")
+    uv = uv * [1.0, -1.0] + [0.0, 1.0]  # v up -> glTF v down
+    tex = face.get("texnumber")
+    corner = np.repeat(np.zeros(len(counts), np.int64) if tex is None else tex, counts)
+    images: list[np.ndarray] = []
+    slot = np.full(len(names) + 1, -1)  # image of each name; the extra -1: no valid texnumber
+    for i, name in enumerate(n.decode("utf-8", "replace") for n in names):
+        img = files(name) if np.any(corner == i) else None
+        if img is not None:
+            slot[i] = len(images)
+            images.append(
+                decode_image(img, name=f"{what}: texture {name!r}", max_pixels=max_pixels)
+            )
+            max_pixels -= images[-1].shape[0] * images[-1].shape[1]
+    if not images:
+        return None
+    corner_img = slot[np.where((corner >= 0) & (corner < len(names)), corner, -1)]
+    acc, cnt = np.zeros((nv, 3)), np.zeros(nv)
+    for k, img in enumerate(images):
+        c = np.flatnonzero(corner_img == k)
+        rgb = sample_image(img, uv[c])
+        for j in range(3):
+            acc[:, j] += np.bincount(flat[c], weights=rgb[:, j], minlength=nv)
+        cnt += np.bincount(flat[c], minlength=nv)
+    has = cnt > 0
+    acc[has] /= cnt[has, None]
+    acc[~has] = acc[has].mean(axis=0)
+    tri = _fan(counts, np.arange(len(flat)))
+    image = corner_img[tri[:, 0]].astype(np.int16)
+    texture = ScanTexture(uv=uv[tri].astype(np.float32), image=image, images=images)
+    return np.clip(np.round(acc * 255.0), 0, 255).astype(np.uint8), texture
 
 
 def _ply_indices(vals: dict[str, Any], el: str, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -1618,8 +1706,8 @@ def read_mesh(
     name : str, optional
         What error messages call the file (e.g. an upload's filename); default its path.
     sidecar_files : bool
-        For an OBJ read from a path: read the MTL and texture images it names from its own
-        folder (by base name only). A service reading stored uploads passes False.
+        For an OBJ or PLY read from a path: read the MTL and texture images it names from its
+        own folder (by base name only). A service reading stored uploads passes False.
     max_texture_pixels : int
         Limit on the summed width x height of a scan's texture images (checked from their
         headers before decoding).
@@ -1633,8 +1721,10 @@ def read_mesh(
 
     Textured scans: an OBJ with ``mtllib``/``usemtl``, ``vt`` and ``v/vt`` faces whose material
     has a ``map_Kd`` image (PNG/JPEG) -- beside the OBJ on disk, or zipped with it (format
-    ``zip``: one ``.obj``, its ``.mtl`` and images) -- or a GLB whose material has a
-    ``baseColorTexture`` (embedded PNG/JPEG) over ``TEXCOORD_0``.
+    ``zip``: one ``.obj``, its ``.mtl`` and images) --, a PLY with ``comment TextureFile``
+    images beside it and face ``texcoord`` lists or vertex ``texture_u``/``texture_v``
+    (MeshLab, Metashape), or a GLB whose material has a ``baseColorTexture`` (embedded
+    PNG/JPEG) over ``TEXCOORD_0``.
 
     Raises
     ------
@@ -1654,11 +1744,11 @@ def read_mesh(
     if f == "npz" and fmt is None:
         f = _zip_kind(data)
     reader = _READERS[f]
-    if f == "obj":
+    if f in ("obj", "ply"):
         folder = None
         if sidecar_files and not isinstance(source, bytes | bytearray | memoryview):
             folder = _folder_files(Path(source).resolve().parent)
-        reader = functools.partial(_read_obj, files=folder, max_pixels=max_texture_pixels)
+        reader = functools.partial(reader, files=folder, max_pixels=max_texture_pixels)
     elif f in ("zip", "glb"):
         reader = functools.partial(reader, max_pixels=max_texture_pixels)
     try:

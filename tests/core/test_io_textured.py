@@ -351,3 +351,43 @@ def test_texture_at_full_resolution_from_a_textured_scan(tmp_path):
     err = np.abs(out[covered][:, 0] / 255.0 - truth)[seen].mean() / 0.8
     err_vertex = np.abs(fallback[covered][:, 0] / 255.0 - truth)[seen].mean() / 0.8
     assert share > 0.85 and err < 0.11 and err < 0.6 * err_vertex, (share, err, err_vertex)
+
+
+@pytest.mark.parametrize("layout", ["face_texcoord", "vertex_uv"])
+def test_textured_ply_beside_its_image_keeps_colours(tmp_path, layout):
+    """MeshLab / Metashape textured PLY: ``comment TextureFile`` and per-corner ``texcoord``
+    (or per-vertex ``texture_u``/``texture_v``); its colours were dropped."""
+    img = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)
+    (tmp_path / "skin.png").write_bytes(encode_png(img))
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    uv = np.array([[0.25, 0.75], [0.75, 0.75], [0.75, 0.25], [0.25, 0.25]], np.float32)  # v up
+    want = [[255, 0, 0], [0, 255, 0], [255, 255, 255], [0, 0, 255]]  # the pixels they hit
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    vprops = "property float x\nproperty float y\nproperty float z\n"
+    fprops = "property list uchar int vertex_indices\n"
+    if layout == "vertex_uv":
+        vprops += "property float texture_u\nproperty float texture_v\n"
+        verts = np.hstack([V, uv]).astype("<f4").tobytes()
+    else:
+        fprops += "property list uchar float texcoord\n"
+        verts = V.astype("<f4").tobytes()
+    faces = b"".join(
+        bytes([3]) + f.astype("<i4").tobytes()
+        + (b"" if layout == "vertex_uv" else bytes([6]) + uv[f].astype("<f4").tobytes())
+        for f in F
+    )  # fmt: skip
+    head = (
+        "ply\nformat binary_little_endian 1.0\ncomment TextureFile skin.png\n"
+        f"element vertex 4\n{vprops}element face 2\n{fprops}end_header\n"
+    ).encode()
+    p = tmp_path / "scan.ply"
+    p.write_bytes(head + verts + faces)
+    r = read_mesh(p)
+    np.testing.assert_array_equal(r.F, F)
+    np.testing.assert_array_equal(r.colors, want)
+    np.testing.assert_allclose(r.texture.uv, (uv * [1, -1] + [0, 1])[F], atol=1e-6)  # glTF
+    assert r.texture.image.tolist() == [0, 0] and len(r.texture.images) == 1
+    # bytes (an upload) or no image beside it: geometry only, as before
+    assert read_mesh(p.read_bytes(), "ply").colors is None
+    (tmp_path / "skin.png").unlink()
+    assert read_mesh(p).colors is None
