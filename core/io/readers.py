@@ -920,6 +920,12 @@ def _read_obj(
                 img_idx[~np.isfinite(uv).all(axis=(1, 2))] = -1
                 texture = ScanTexture(uv=uv, image=img_idx, images=texture_images)
         F = _fan(ftok, vi)
+    else:  # a point cloud: one vn per v, in order (MeshLab, CloudCompare)
+        vn_lines = _OBJ_VN.findall(data)
+        if len(vn_lines) == nv:
+            vn = _parse_floats(b"\n".join(vn_lines), f"{what} (OBJ normals)")
+            if len(vn) == 3 * nv:
+                normals = vn.reshape(-1, 3)
     return _finish(RawMesh(V=V, F=F, normals=normals, colors=colors, texture=texture), what)
 
 

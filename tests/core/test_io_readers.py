@@ -600,3 +600,18 @@ def test_point_cloud_text_columns_in_cloudcompare_order(header):
     r = read_mesh(text.encode(), "xyz")
     np.testing.assert_array_equal(r.colors, rgb)
     assert r.normals is None
+
+
+def test_obj_point_cloud_keeps_its_vertex_normals():
+    """A point cloud saved as OBJ (MeshLab, CloudCompare) has one ``vn`` per ``v`` and no faces
+    to pair them: the normals were dropped (and estimated again)."""
+    N = np.random.default_rng(5).normal(size=(5, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    text = "".join(f"vn {n[0]!r} {n[1]!r} {n[2]!r}\nv {v[0]} {v[1]} {v[2]}\n"
+                   for v, n in zip(SQUARE_V, N.tolist(), strict=True))  # fmt: skip
+    r = read_mesh(text.encode(), "obj")
+    assert r.F is None
+    np.testing.assert_allclose(r.V, SQUARE_V)
+    np.testing.assert_allclose(r.normals, N)
+    # a count that does not match says nothing about which normal is whose
+    assert read_mesh(text.encode() + b"vn 0 0 1\n", "obj").normals is None
