@@ -42,13 +42,15 @@ class OrientationRepair:
     inconsistent (some triangles flipped); n_flipped : patches turned to face outward;
     triangles_flipped : triangles whose winding changed in total.
     edges : (e, 2) int64 undirected edges (sorted endpoints); edge_counts : (e,) triangles using
-    each (as :func:`core.io._geometry.edge_use_counts`, computed on the way); face_normals :
-    (m, 3) of the repaired triangles, length twice the area.
+    each (as :func:`core.io._geometry.edge_use_counts`, computed on the way); edge_faces : (e,)
+    int64 a triangle using each edge (the only one of an edge used once); face_normals : (m, 3)
+    of the repaired triangles, length twice the area.
     """
 
     F: np.ndarray
     edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     edge_counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    edge_faces: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     face_normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     n_patches: int = 0
     n_rewound: int = 0
@@ -59,10 +61,10 @@ class OrientationRepair:
 
 def _patches_and_relative_signs(
     F: np.ndarray,
-) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Edge-connected patches of triangles and, per triangle, the flip (±1) that makes its
     patch consistently wound; which triangles have a boundary (single-use) edge; the undirected
-    edges and their use counts."""
+    edges, their use counts and a triangle using each."""
     m = len(F)
     a = np.ascontiguousarray(F, dtype=np.int64)  # (m, 3): half-edge 3 f + k is a[f, k] -> b[f, k]
     b = a[:, [1, 2, 0]]
@@ -97,7 +99,7 @@ def _patches_and_relative_signs(
     G = sparse.coo_matrix((np.ones(len(f1)), (f1, f2)), shape=(m, m)).tocsr()
     n_patch, label = csgraph.connected_components(G, directed=False)
     if not same_dir.any():  # consistently wound already (the common case)
-        return n_patch, label, np.ones(m), on_boundary, E, count
+        return n_patch, label, np.ones(m), on_boundary, E, count, fo[first]
     roots = np.unique(label, return_index=True)[1]
     r = np.r_[f1, np.full(len(roots), m)]
     c = np.r_[f2, roots]
@@ -120,7 +122,7 @@ def _patches_and_relative_signs(
             break
         sign = sign * sign[par]
         par = par[par]
-    return n_patch, label, sign, on_boundary, E, count
+    return n_patch, label, sign, on_boundary, E, count, fo[first]
 
 
 def orient_components(
@@ -140,7 +142,7 @@ def orient_components(
         return OrientationRepair(F=F)
     if len(centres) != len(F) or len(radial) != len(F):
         raise ValueError("centres and radial need one row per triangle")
-    n_patch, label, sign, on_boundary, E, counts = _patches_and_relative_signs(F)
+    n_patch, label, sign, on_boundary, E, counts, edge_faces = _patches_and_relative_signs(F)
     fn = face_normals(V, F)  # length 2·area
     area = row_norms(fn)
     # the tree's root is arbitrary: keep the original winding of most of each patch's area
@@ -192,6 +194,7 @@ def orient_components(
         face_normals=np.where(turn[:, None], -fn, fn),
         edges=E,
         edge_counts=counts,
+        edge_faces=edge_faces,
         n_patches=int(n_patch),
         n_rewound=len(rewound),
         n_flipped=int(inward.sum()),

@@ -4,8 +4,9 @@ Steps (all vectorised): map to the canonical frame (metres, +Y up); clean (weld 
 coincident vertices, drop degenerate and duplicate triangles and unreferenced vertices, drop
 duplicate points of a cloud); remove what is not the body (a floor plate or floor points, stray
 blobs: :mod:`core.io.clean`); normals (from the file, else area-weighted for meshes or PCA of
-the k nearest neighbours for clouds, oriented outward); boundary flags; confidence (from the
-file, else estimated from the distance to the nearest boundary and isolation).
+the k nearest neighbours for clouds, oriented outward); boundary flags (open edges,
+but not the zero-width cracks of T-junctions and slivers: :func:`_crack_edges`); confidence (from
+the file, else estimated from the distance to the nearest boundary and isolation).
 """
 
 from __future__ import annotations
@@ -37,6 +38,21 @@ CONF_RAMP_MIN = 0.005  # m; the confidence ramp is max(this, 3 x median spacing)
 #: the scan at ~1 cm, the template's resolution; a 4 mm scanner gives ~150 k points).
 DECIMATE_ABOVE = 600_000
 DECIMATE_VOXEL_M = 0.004  # m, the voxel edge of that decimation (a 4 mm scanner's pitch)
+#: Dimensionless, a fraction of the local edge length: a point within this × the length of an
+#: open edge (the longer of the two edges compared) lies *on* it, so open edges that run along
+#: each other this closely enclose no gap (a crack: :func:`_crack_edges`). 1 % is 10 µm on a
+#: 1 mm edge, 40 µm at the 4 mm decimation pitch: above the rounding of coordinates written with
+#: 6 significant digits (≤ 5e-6 × 2 m = 10 µm) or as float32 (≤ 0.1 µm), which moves a
+#: T-junction's vertex off the edge it splits, and 100x below the width of any real hole, whose
+#: two sides are at least one sample spacing (about one edge length) apart.
+CRACK_TOL = 0.01
+#: Two open edges along each other whose triangles lie on the same side (their directions
+#: into the triangles, across the edges, within ~25°: cosine above this) are a rim doubled by
+#: an overlapping patch (≈ 0°), not a crack, whose sides are ≈ 180° apart on a smooth body; the
+#: folds of tiny triangles (a mouth pocket, marching-cubes folds) reach 35-60°.
+CRACK_SAME_SIDE_COS = 0.9
+K_CRACK = 32  # nearest index points searched per crack sample (a few edges meet at a vertex)
+CRACK_CHUNK = 65_536  # crack samples per vectorised block (bounds the (chunk, k, 3) arrays)
 
 
 def _unique_rows(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -257,9 +273,129 @@ def _cloud_boundary(V: np.ndarray, N: np.ndarray, nbr: np.ndarray, dist: np.ndar
     return row_norms(off) > BOUNDARY_OFFSET * np.maximum(radius, 1e-12)
 
 
+def _crack_edges(V: np.ndarray, E: np.ndarray, side: np.ndarray | None = None) -> np.ndarray:
+    """Which open edges (e, 2) of a mesh are cracks: (e,) bool.
+
+    A crack is an open edge that encloses no gap: every point of it lies on (within
+    :data:`CRACK_TOL` × the longer edge's length of) another of the open edges ``E`` whose
+    triangle is on the other side (``side`` (e, 3): unit directions from each edge into its
+    triangle, across it; zero rows where that is undefined: an edge used by several triangles or
+    by a zero-area one; two edges whose sides agree within :data:`CRACK_SAME_SIDE_COS` are a
+    doubled rim, not a crack). That is a
+    T-junction (a vertex on a neighbour's edge: the edge a–b on one side, a–m and m–b on the
+    other, so all three are used once though the surface is closed), a seam of two unwelded
+    sides that coincide, and the edges of a zero-area (degenerate) triangle that hangs off the
+    surface (used once, or 3 times along the edge it lies on): any boundary loop of ~zero width.
+    An edge of a real hole has no other open edge along its whole length (the hole's far side
+    is at least a sample spacing away; its neighbours on the rim meet it only at its ends), so
+    it is never one; nor is a fin (a triangle standing off an edge).
+
+    Each edge's midpoint is tested first; only the edges it finds on another (few on a real
+    scan) have their other points tested: max(3, ceil(length / h)) spread over the interior (h:
+    the median open-edge length). A point looks for the other edges among the :data:`K_CRACK`
+    nearest (within reach) of points placed on every open edge at most h apart (one cKDTree),
+    then measures the exact point-to-segment distance. Vectorised over all edges (blocks of
+    :data:`CRACK_CHUNK` points).
+    """
+    m = len(E)
+    crack = np.zeros(m, bool)
+    if m < 2:
+        return crack
+    P0 = V[E[:, 0]]
+    D = V[E[:, 1]] - P0
+    L = row_norms(D)
+    L2 = np.maximum(L * L, 1e-300)
+    # spacing of the points: the median edge, raised so that they stay at most ~9 per edge
+    h = max(float(np.median(L)), float(L.sum()) / (8.0 * m), 1e-300)
+
+    def spread(count: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points at the centres of ``count`` equal pieces of each of ``edges``; their edge."""
+        owner = np.repeat(edges, count)
+        j = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
+        t = (j + 0.5) / np.repeat(count, count)
+        return P0[owner] + t[:, None] * D[owner], owner
+
+    pieces = np.maximum(1, np.ceil(L / h)).astype(np.int64)
+    X, x_edge = spread(pieces, np.arange(m))  # every point of an edge is within h / 2 of these
+    tree = cKDTree(X)
+    k = min(K_CRACK, len(X))
+    # a point within CRACK_TOL × max(both lengths) of an edge is within this of its points
+    reach = h / 2.0 + CRACK_TOL * float(L.max()) * (1.0 + 1e-9)
+
+    def on_other_edge(Q: np.ndarray, qe: np.ndarray) -> np.ndarray:
+        """Whether each point Q (q, 3) of edge qe (q,) lies on another of the edges."""
+        out = np.zeros(len(Q), bool)
+        for lo in range(0, len(Q), CRACK_CHUNK):
+            q, e = Q[lo : lo + CRACK_CHUNK], qe[lo : lo + CRACK_CHUNK]
+            _, nb = tree.query(q, k=k, distance_upper_bound=reach, workers=KD_WORKERS)
+            i, j = np.nonzero(nb.reshape(len(q), k) < len(X))
+            c = x_edge[nb.reshape(len(q), k)[i, j]]
+            i, c = i[c != e[i]], c[c != e[i]]
+            w = q[i] - P0[c]
+            t = np.clip(np.einsum("ij,ij->i", w, D[c]) / L2[c], 0.0, 1.0)
+            dist = row_norms(w - t[:, None] * D[c])
+            hit = dist <= CRACK_TOL * np.maximum(L[e[i]], L[c])
+            if side is not None:
+                hit &= np.einsum("ij,ij->i", side[e[i]], side[c]) <= CRACK_SAME_SIDE_COS
+            out[lo : lo + CRACK_CHUNK] = np.bincount(i[hit], minlength=len(q)) > 0
+        return out
+
+    # the midpoints first: a real hole's edges fail there
+    cand = np.flatnonzero(on_other_edge(P0 + 0.5 * D, np.arange(m)))
+    if len(cand) == 0:
+        return crack
+    ns = np.maximum(3, pieces[cand])
+    Q, q_edge = spread(ns, cand)  # (t = 1/6, 1/2, 5/6 for a short edge)
+    miss = ~on_other_edge(Q, q_edge)
+    crack[cand] = np.bincount(q_edge[miss], minlength=m)[cand] == 0
+    return crack
+
+
+def _mesh_boundary(
+    V: np.ndarray,
+    F: np.ndarray,
+    E: np.ndarray,
+    counts: np.ndarray,
+    edge_faces: np.ndarray,
+    decimated: bool,
+) -> tuple[np.ndarray, int]:
+    """Boundary vertices (n,) bool of a mesh from its undirected edges, their use counts and a
+    triangle using each, and how many vertices lie only on cracks (:func:`_crack_edges`), which
+    are no boundary.
+
+    Open edges are those not shared by two triangles; after vertex clustering, edges of folded
+    (non-manifold) clusters are used 3-5 times: then only edges used once are borders.
+    """
+    boundary = np.zeros(len(V), bool)
+    open_ = counts != 2
+    if not open_.any():
+        return boundary, 0
+    Eo = E[open_]
+    # the side of each edge used once: towards its triangle's third corner, across the edge
+    a, b = V[Eo[:, 0]], V[Eo[:, 1]]
+    c = V[F[edge_faces[open_]].sum(axis=1) - Eo.sum(axis=1)]
+    d = b - a
+    w = c - a
+    w -= (np.einsum("ij,ij->i", w, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300))[
+        :, None
+    ] * d
+    wl = row_norms(w)
+    ok = (counts[open_] == 1) & (wl > CRACK_TOL * row_norms(d))  # not a zero-area triangle
+    side = np.where(ok[:, None], w / np.where(ok, wl, 1.0)[:, None], 0.0)
+    crack = _crack_edges(V, Eo, side)
+    border = ~crack & ((counts[open_] == 1) if decimated else True)
+    boundary[Eo[border].ravel()] = True
+    on_crack = np.zeros(len(V), bool)
+    on_crack[Eo[crack].ravel()] = True
+    return boundary, int((on_crack & ~boundary).sum())
+
+
 def _estimate_confidence(
     V: np.ndarray, boundary: np.ndarray, spacing: float, isolated: np.ndarray
 ) -> np.ndarray:
+    """Estimated confidence (n,) in [CONF_MIN, 1]: CONF_MIN on the ``boundary`` (hole rims; not
+    the cracks of T-junctions and slivers, :func:`_mesh_boundary`) and at ``isolated`` points,
+    rising linearly to 1 over max(:data:`CONF_RAMP_MIN`, 3 × spacing) from the boundary."""
     ramp = max(CONF_RAMP_MIN, 3.0 * spacing)
     conf = np.ones(len(V))
     if boundary.any():
@@ -313,12 +449,35 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
         repair = orient_components(V, F, centres, _radial(centres))
         F = repair.F
         notes.extend(repair.notes)
-        vn = vertex_normals(V, F, face_normals=repair.face_normals)
+        fn = repair.face_normals
+        vn = vertex_normals(V, F, fallback=(0.0, 0.0, 0.0), face_normals=fn)
+        # a vertex used only by zero-area triangles (height under CRACK_TOL x the edges) has no
+        # normal of its own (its sum is rounding noise): it takes the mean of its triangles'
+        # other corners' (a sliver's apex: its edge's ends), else the nearest vertex's
+        u, w = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+        scale = np.einsum("ij,ij->i", u, u) + np.einsum("ij,ij->i", w, w)
+        flat = np.ones(n, bool)
+        flat[F[row_norms(fn) > CRACK_TOL * scale].ravel()] = False
+        if flat.any():
+            Ff = F[flat[F].any(axis=1)]
+            acc = np.zeros((n, 3))
+            for k in range(3):
+                for j in (1, 2):
+                    src = Ff[:, (k + j) % 3]
+                    np.add.at(acc, Ff[:, k], vn[src] * ~flat[src][:, None])
+            vn[flat] = normalize(acc[flat], fallback=(0.0, 0.0, 0.0))
+            flat &= row_norms(vn) == 0.0
+        if flat.any() and not flat.all():
+            _, j = cKDTree(V[~flat]).query(V[flat], workers=KD_WORKERS)
+            vn[flat] = vn[~flat][j]
+        vn[row_norms(vn) == 0.0] = (0.0, 1.0, 0.0)
         E, counts = repair.edges, repair.edge_counts
-        boundary = np.zeros(n, bool)
-        # open borders: edges not shared by two triangles; after vertex clustering, edges of
-        # folded (non-manifold) clusters are used 3-5 times: only edges used once are borders
-        boundary[E[(counts == 1) if decimated else (counts != 2)].ravel()] = True
+        boundary, n_crack = _mesh_boundary(V, F, E, counts, repair.edge_faces, decimated)
+        if n_crack:
+            notes.append(
+                f"{n_crack:,} vertices on cracks of zero width (T-junctions, slivers) "
+                "not counted as a boundary"
+            )
         el = row_norms(V[E[:, 0]] - V[E[:, 1]])
         spacing = float(np.median(el)) if len(el) else 0.0
         A = sparse.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))

@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from bench.machine import reference_cpu
+from core.io._geometry import edge_use_counts
 from core.io.frame import detect_frame, rotation_for_up
 from core.io.markers import write_markers_csv
 from core.io.prepare import load_scan, prepare_scan
@@ -289,3 +290,102 @@ def test_dense_scan_decimated_on_a_voxel_grid():
     # attributes are averaged per cell
     m = decimate_voxel_grid(RawMesh(V=V, F=F, confidence=np.full(len(V), 0.5)), 0.004)
     assert np.allclose(m.confidence, 0.5) and len(m.V) == len(m.confidence) >= len(s.V)
+
+
+def _t_junctions(V, F, count, rng, off=0.0):
+    """``count`` T-junctions: a vertex inserted at the midpoint of an edge shared by two
+    triangles, splitting one of them in two and leaving the other whole (a crack of zero
+    width); ``off`` moves each new vertex off the edge by that fraction of its length (as the
+    rounding of written coordinates does). Returns V, F and the new vertices' indices."""
+    E, counts = edge_use_counts(F, len(V))
+    interior = set((E[counts == 2, 0] * len(V) + E[counts == 2, 1]).tolist())
+    fi = rng.permutation(len(F))
+    j = rng.integers(0, 3, len(F))
+    a, b, c = F[fi, j], F[fi, (j + 1) % 3], F[fi, (j + 2) % 3]
+    key = np.minimum(a, b) * len(V) + np.maximum(a, b)
+    ok = np.array([k in interior for k in key.tolist()])
+    _, first = np.unique(key[ok], return_index=True)  # one split per edge
+    sel = np.flatnonzero(ok)[first[:count]]
+    fi, a, b, c = fi[sel], a[sel], b[sel], c[sel]
+    d = V[b] - V[a]
+    u = np.cross(d, rng.normal(size=d.shape))
+    u *= (off * np.linalg.norm(d, axis=1) / np.linalg.norm(u, axis=1))[:, None]
+    m = len(V) + np.arange(len(fi))
+    keep = np.ones(len(F), bool)
+    keep[fi] = False
+    F2 = np.vstack([F[keep], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
+    return np.vstack([V, (V[a] + V[b]) / 2 + u]), F2, m
+
+
+def test_t_junction_cracks_are_no_boundary_and_keep_confidence():
+    """T-junctions (a vertex on a neighbour's edge: zero-width cracks, as merged scans and
+    remesh exports have) and an unwelded seam do not lower the estimated confidence: the
+    crack-free template has confidence 1 everywhere, and so does the cracked one."""
+    rng = np.random.default_rng(3)
+    V, F, m = _t_junctions(V0, F0, 1500, rng, off=1e-3)  # off the edge by rounding (0.1 %)
+    s = prep(RawMesh(V=V, F=F))
+    assert len(m) == 1500 and len(s.V) == len(V)  # nothing welded or dropped
+    assert not s.boundary.any()
+    np.testing.assert_allclose(s.confidence, 1.0)
+    assert any("cracks of zero width" in n for n in s.notes), s.notes
+    assert np.mean(np.sum(s.normals[: len(V0)] * GT_N, axis=1) > 0.9) > 0.99
+    # a seam: the front half's vertices not welded to the back half's (1 nm apart)
+    front = V0[F0].mean(axis=1)[:, 2] > np.median(V0[:, 2])
+    used = np.unique(F0[front])
+    Fs = F0.copy()
+    Fs[front] = np.searchsorted(used, F0[front]) + len(V0)
+    Vs = np.vstack([V0, V0[used] + 1e-9])
+    seam = prep(RawMesh(V=Vs, F=Fs))
+    assert not seam.boundary.any()
+    assert seam.confidence.min() == 1.0
+    # a vertex moved off the edge it splits by 5 % of its length opens a (thin) real gap
+    V5, F5, m5 = _t_junctions(V0, F0, 20, rng, off=0.05)
+    gap = prep(RawMesh(V=V5, F=F5))
+    assert gap.boundary[m5].all() and np.all(gap.confidence[m5] == pytest.approx(0.2))
+
+
+def test_real_hole_lowers_confidence_as_before_among_t_junction_cracks():
+    """A real hole keeps its rim and confidence ramp when T-junction cracks surround it."""
+    vi = TPL.landmarks["Omphalion"]
+    F = hole_mesh(vi, 0.04)
+    used = np.unique(F)
+    Vh, Fh = V0[used], np.searchsorted(used, F)
+    hole = prep(RawMesh(V=Vh, F=Fh))
+    V, F2, _ = _t_junctions(Vh, Fh, 1500, np.random.default_rng(5), off=1e-3)
+    s = prep(RawMesh(V=V, F=F2))
+    n = len(Vh)  # the hole mesh's vertices come first, in order, in both scans
+    np.testing.assert_array_equal(s.V[:n], hole.V)
+    assert hole.boundary.any()
+    np.testing.assert_array_equal(s.boundary[:n], hole.boundary)
+    assert not s.boundary[n:].any() or np.all(
+        np.linalg.norm(s.V[n:][s.boundary[n:]] - V0[vi], axis=1) < 0.06
+    )  # a split rim edge puts its new vertex on the rim
+    d = np.linalg.norm(s.V - V0[vi], axis=1)
+    assert np.all(s.confidence[s.boundary] == pytest.approx(0.2))
+    assert np.all(s.confidence[d > 0.2] == 1.0)
+    near = d[:n] < 0.08
+    assert hole.confidence[near].mean() < 0.9
+    # the same ramp (its width follows the median edge length, which the splits shorten)
+    assert abs(s.confidence[:n][near].mean() - hole.confidence[near].mean()) < 0.03
+
+
+def test_zero_area_triangles_make_no_border_and_no_nan():
+    """Zero-area triangles hanging off edges (a collinear sliver with its own vertex on the
+    edge, a needle to a vertex 1 nm from a corner) give no border and no NaN: their own
+    vertices take the nearest vertex's normal."""
+    rng = np.random.default_rng(7)
+    E, _ = edge_use_counts(F0, len(V0))
+    e = E[rng.choice(len(E), 400, replace=False)]
+    a, b = e[:200, 0], e[:200, 1]
+    p, q = e[200:, 0], e[200:, 1]
+    n = len(V0)
+    sliver = np.stack([a, b, n + np.arange(200)], 1)  # apex at the edge's midpoint
+    needle = np.stack([p, q, n + 200 + np.arange(200)], 1)  # apex 1 nm from p
+    V = np.vstack([V0, (V0[a] + V0[b]) / 2, V0[p] + 1e-9])
+    s = prep(RawMesh(V=V, F=np.vstack([F0, sliver, needle])))
+    assert np.isfinite(s.normals).all() and np.isfinite(s.confidence).all()
+    np.testing.assert_allclose(np.linalg.norm(s.normals, axis=1), 1.0)
+    assert not s.boundary.any()
+    np.testing.assert_allclose(s.confidence, 1.0)
+    own = np.concatenate([GT_N[a] + GT_N[b], GT_N[p]])
+    assert np.all(np.sum(s.normals[n:] * own, axis=1) > 0.5)
