@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from core.geometry import vertex_normals
@@ -255,7 +256,12 @@ class ScanIndex:
 
 
 def normal_line_targets(
-    targets: np.ndarray, X0: np.ndarray, N0: np.ndarray, max_offset: float
+    targets: np.ndarray,
+    X0: np.ndarray,
+    N0: np.ndarray,
+    max_offset: float,
+    smoother: sp.csr_matrix | None = None,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """The data term's targets moved onto the body prior's normal lines.
 
@@ -263,11 +269,35 @@ def normal_line_targets(
     ``X0`` (n, 3) along its unit normal ``N0`` (n, 3) at the target's offset along that normal:
     the data say how far out the skin lies, the body prior where along the surface it belongs.
     Where the target lies farther than ``max_offset`` (metres) from that line the body prior is
-    off there and the target is kept. Returns the targets (n, 3).
+    off there and the target is kept. With ``smoother`` ((n, n), :func:`offset_smoother`) the
+    offsets are its weighted means (``weights`` (n,): the data's, 0 where none), so that a
+    coarse scan sets only what it resolves and the body prior keeps its finer detail.
+    Returns the targets (n, 3).
     """
-    on_line = X0 + np.einsum("ij,ij->i", targets - X0, N0)[:, None] * N0
+    d = np.einsum("ij,ij->i", targets - X0, N0)
+    on_line = X0 + d[:, None] * N0
     near = np.linalg.norm(targets - on_line, axis=1) < max_offset
+    if smoother is not None:
+        w = (np.ones(len(d)) if weights is None else np.asarray(weights, float)) * near
+        num, den = smoother @ (w * d), smoother @ w
+        d = np.where(den > 0, num / np.where(den > 0, den, 1.0), d)
+        on_line = X0 + d[:, None] * N0
     return np.where(near[:, None], on_line, targets)
+
+
+def offset_smoother(X0: np.ndarray, N0: np.ndarray, sigma: float) -> sp.csr_matrix:
+    """(n, n) Gaussian weights (scale ``sigma``, metres; cut at 2 sigma) between the vertices
+    X0 (n, 3) whose unit normals N0 (n, 3) agree (dot > 0.5: not across a lip or an ear's
+    rim), each vertex with itself at weight 1: the smoothing of :func:`normal_line_targets`."""
+    n = len(X0)
+    pairs = cKDTree(X0).query_pairs(2.0 * sigma, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    keep = np.einsum("ij,ij->i", N0[i], N0[j]) > 0.5
+    i, j = i[keep], j[keep]
+    g = np.exp(-np.sum((X0[i] - X0[j]) ** 2, axis=1) / (2.0 * sigma**2))
+    rows = np.r_[i, j, np.arange(n)]
+    cols = np.r_[j, i, np.arange(n)]
+    return sp.csr_matrix((np.r_[g, g, np.ones(n)], (rows, cols)), shape=(n, n))
 
 
 #: A point within this distance (metres) of the first fitted body whose normal points against

@@ -20,6 +20,7 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
@@ -33,6 +34,7 @@ from core.registration.correspondence import (
     CONFIDENCE_FULL_AT,
     ScanIndex,
     normal_line_targets,
+    offset_smoother,
     other_foot_matches,
 )
 from core.registration.initialization import MarkerAlignment, Similarity, align_markers
@@ -251,6 +253,16 @@ NORMAL_LINE_FREE_PARTS = ("hand_L", "hand_R", "foot_L", "foot_R")
 #: body prior is off there (a heavy body's crotch: targets on the normal line put vertices
 #: 2-10 cm off the scan, the fit->scan p95 7.3 -> 10.7 mm)
 NORMAL_LINE_MAX_OFFSET_M = 0.01
+#: The normal lines' offsets are averaged over the body prior's surface (Gaussian, this many
+#: times the scan's detail ``ScanIndex.resolution_m``): the scan sets the skin where it resolves
+#: it, the body prior keeps what is finer (a 10-14 mm grid's mesh rounds the nose, lips and eye
+#: sockets off; the prior's own detail, with the mesh's offset below it, is closer to the
+#: truth). Twin diagnostic (``bench.realworld``'s 8 closed_lowres / raw pairs; twins, head
+#: twins, correspondence closed / raw, mm): none 3.14, 1.70, 6.44 / 5.55; 1 × 3.13; 2 × 3.09,
+#: 1.55, 6.43 / 5.52; 3 × 3.10; 4.5 × 3.10. Not below :data:`OFFSET_SMOOTHING_MIN_M` (metres):
+#: a dense scan's own detail is the skin's.
+OFFSET_SMOOTHING_PER_RESOLUTION = 2.0
+OFFSET_SMOOTHING_MIN_M = 0.003
 
 
 def toes_take_data(index: ScanIndex) -> bool:
@@ -471,7 +483,16 @@ def iter_fit(
         on = np.ones(len(X0), dtype=bool)
         for part in NORMAL_LINE_FREE_PARTS:
             on &= ~tpl.part_mask(part)
-        state.normal_lines = (X0, vertex_normals(X0, np.asarray(tpl.F, np.int64)), on)
+        N0 = vertex_normals(X0, np.asarray(tpl.F, np.int64))
+        state.normal_lines = (X0, N0, on)
+        sigma = OFFSET_SMOOTHING_PER_RESOLUTION * index.resolution_m
+        if sigma >= OFFSET_SMOOTHING_MIN_M:
+            state.offset_smoother = offset_smoother(X0[on], N0[on], sigma)
+            report.notes.append(
+                f"refinement: the skin's offsets from the body prior averaged over "
+                f"{sigma * 1000:.1f} mm ({OFFSET_SMOOTHING_PER_RESOLUTION:g} × the scan's detail): "
+                "what is finer (a coarse mesh's rounded nose and lips) is the body prior's"
+            )
     for si, st in enumerate(schedule.stages):
         want = low if st.resolution == "low" else full
         assert want is not None
@@ -745,6 +766,9 @@ class _StageState:
     #: the body prior's vertices and unit normals (13380, 3) in the scan frame, and (13380,)
     #: bool the vertices whose data targets move onto its normal lines (NORMAL_LINE_FREE_PARTS)
     normal_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    #: the smoothing of the normal lines' offsets over the ``on`` vertices (full resolution)
+    #: on a scan coarser than :data:`OFFSET_SMOOTHING_MIN_M` (:func:`offset_smoother`)
+    offset_smoother: sp.csr_matrix | None = None
 
     def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
         """Switch to resolution ``want`` (start from A0, or blend low-resolution affines up)."""
@@ -814,9 +838,11 @@ def one_stage(
             w = corr.weights * level.data_mask
             if state.normal_lines is not None:
                 X0, N0, on = (a[level.vertex_ids] for a in state.normal_lines)
+                smooth = state.offset_smoother if level is full else None
                 corr.targets[on] = normal_line_targets(
-                    corr.targets[on], X0[on], N0[on], NORMAL_LINE_MAX_OFFSET_M
-                )
+                    corr.targets[on], X0[on], N0[on], NORMAL_LINE_MAX_OFFSET_M,
+                    smooth, w[on],
+                )  # fmt: skip
             if state.toe_guard is not None:  # a toe's data on the other foot is no toe's
                 toe_side, foot_side = state.toe_guard
                 vid = level.vertex_ids

@@ -13,7 +13,12 @@ import pytest
 from bench.cases import make_case
 from core.errors import FitError, MarkerError
 from core.io import detect_frame, load_scan, prepare_scan, write_markers_csv, write_ply
-from core.registration.correspondence import ScanIndex, confidence_weight, normal_line_targets
+from core.registration.correspondence import (
+    ScanIndex,
+    confidence_weight,
+    normal_line_targets,
+    offset_smoother,
+)
 from core.registration.fit import FitCancelled, fit, template_operators
 from core.registration.initialization import Similarity, align_markers, umeyama
 from core.registration.schedule import Schedule, Stage
@@ -243,6 +248,37 @@ def test_normal_line_targets_keep_the_prior_along_the_surface():
     assert np.allclose(got[0], [0.0, 0.0, 0.002])  # 5 mm along the surface: on the line
     assert np.allclose(got[1], T[1])  # 20 mm along it: the prior is off there, kept
     assert np.allclose(got[2], T[2])  # already on the line
+
+
+def test_offset_smoothing_keeps_what_the_scan_resolves_and_leaves_finer_detail_to_the_prior():
+    """With :func:`offset_smoother` the normal lines' offsets are local weighted means: a
+    uniform offset (the skin's place, which a coarse scan resolves) stays exactly, a one-vertex
+    bump narrower than the scale (detail it does not resolve) is mostly the prior's, vertices
+    without data add nothing, and a sheet facing the other way (a lip) does not mix in."""
+    g = np.arange(-10, 11) * 0.001  # a 21 x 21 plane, 1 mm apart, normals +z
+    gx, gy = np.meshgrid(g, g)
+    P = np.c_[gx.ravel(), gy.ravel(), np.zeros(gx.size)]
+    lip = P + np.array([0.0, 0.0, -0.002])  # 2 mm below, facing down
+    X0 = np.r_[P, lip]
+    N0 = np.r_[np.tile([0.0, 0.0, 1.0], (len(P), 1)), np.tile([0.0, 0.0, -1.0], (len(P), 1))]
+    W = offset_smoother(X0, N0, 0.003)
+    assert abs(W - W.T).max() == 0 and np.allclose(W.diagonal(), 1.0)
+    n = len(P)
+    assert W[:n, n:].nnz == 0  # no weight across the opposite-facing sheets
+    d = np.r_[np.full(n, 0.002), np.full(n, 0.004)]  # offsets along each vertex's normal
+    centre = n // 2
+    d[centre] += 0.003  # a one-vertex bump
+    w = np.ones(2 * n)
+    w[centre + 1] = 0.0  # its neighbour has no data: its offset is not counted
+    d[centre + 1] = 0.05
+    got = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1, W, w)
+    off = np.einsum("ij,ij->i", got - X0, N0)
+    far = np.linalg.norm(P[:, :2], axis=1) > 0.008  # away from the bump
+    assert np.allclose(off[:n][far], 0.002)  # the uniform offset stays
+    assert np.allclose(off[n:], 0.004)  # the other sheet keeps its own
+    assert 0.002 < off[centre] < 0.002 + 0.3 * 0.003  # the bump mostly smoothed away
+    without = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1)
+    assert np.allclose(np.einsum("ij,ij->i", without - X0, N0), d)  # no smoother: as matched
 
 
 def test_refinement_after_a_body_prior_moves_the_skin_along_its_normals(case, monkeypatch):
