@@ -263,6 +263,11 @@ NORMAL_LINE_MAX_OFFSET_M = 0.01
 #: a dense scan's own detail is the skin's.
 OFFSET_SMOOTHING_PER_RESOLUTION = 2.0
 OFFSET_SMOOTHING_MIN_M = 0.003
+#: ... nor above this (metres): on booth meshes of 6-7 mm detail (``bench.realworld --booth``)
+#: 12-15 mm averaged their torsos' and limbs' offsets too (scan→fit p95 3.22 -> 3.51 mm,
+#: fit→scan 2.97 -> 3.08); at 8 mm 3.31 and 2.99, correspondence 10.11 -> 10.09 (uncapped
+#: 10.10), the twin diagnostic unchanged (3.09)
+OFFSET_SMOOTHING_MAX_M = 0.008
 
 
 def toes_take_data(index: ScanIndex) -> bool:
@@ -485,7 +490,7 @@ def iter_fit(
             on &= ~tpl.part_mask(part)
         N0 = vertex_normals(X0, np.asarray(tpl.F, np.int64))
         state.normal_lines = (X0, N0, on)
-        sigma = OFFSET_SMOOTHING_PER_RESOLUTION * index.resolution_m
+        sigma = min(OFFSET_SMOOTHING_PER_RESOLUTION * index.resolution_m, OFFSET_SMOOTHING_MAX_M)
         if sigma >= OFFSET_SMOOTHING_MIN_M:
             state.offset_smoother = offset_smoother(X0[on], N0[on], sigma)
             report.notes.append(
