@@ -495,7 +495,8 @@ def iter_fit(
             state.offset_smoother = offset_smoother(X0[on], N0[on], sigma)
             report.notes.append(
                 f"refinement: the skin's offsets from the body prior averaged over "
-                f"{sigma * 1000:.1f} mm ({OFFSET_SMOOTHING_PER_RESOLUTION:g} × the scan's detail): "
+                f"{sigma * 1000:.1f} mm ({OFFSET_SMOOTHING_PER_RESOLUTION:g} × the scan's detail, "
+                f"at most {OFFSET_SMOOTHING_MAX_M * 1000:g} mm): "
                 "what is finer (a coarse mesh's rounded nose and lips) is the body prior's"
             )
     for si, st in enumerate(schedule.stages):
@@ -771,8 +772,8 @@ class _StageState:
     #: the body prior's vertices and unit normals (13380, 3) in the scan frame, and (13380,)
     #: bool the vertices whose data targets move onto its normal lines (NORMAL_LINE_FREE_PARTS)
     normal_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-    #: the smoothing of the normal lines' offsets over the ``on`` vertices (full resolution)
-    #: on a scan coarser than :data:`OFFSET_SMOOTHING_MIN_M` (:func:`offset_smoother`)
+    #: the smoothing of the normal lines' offsets over the ``on`` vertices (full resolution),
+    #: where its scale reaches :data:`OFFSET_SMOOTHING_MIN_M` (:func:`offset_smoother`)
     offset_smoother: sp.csr_matrix | None = None
 
     def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
