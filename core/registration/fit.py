@@ -26,8 +26,10 @@ from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.closed_concavities import (
     MIN_CLOSING_RADIUS_M,
+    MITTEN_WRIST_BAND_M,
     ROUNDED_OFF_PER_RESOLUTION,
     closed_over,
+    mitten_hands,
     rounded_off,
 )
 from core.registration.correspondence import (
@@ -276,18 +278,24 @@ def toes_take_data(index: ScanIndex) -> bool:
     return index.resolution_m < TOE_DATA_MAX_SPACING_M
 
 
-def closed_mesh_note(radius_m: float, bridged: int, rounded: int, rounded_radius_m: float) -> str:
+def closed_mesh_note(
+    radius_m: float, bridged: int, rounded: int, rounded_radius_m: float, mittens: int
+) -> str:
     """The report's note on a hole-filled closed mesh (its concavities bridged by a ball of
     ``radius_m`` metres; ``bridged`` template vertices under the bridges; ``rounded`` vertices
-    of convex detail narrower than an inner ball of ``rounded_radius_m``)."""
+    of convex detail narrower than an inner ball of ``rounded_radius_m``; ``mittens`` vertices
+    of the open hands and their wrists, :func:`core.registration.closed_concavities.
+    mitten_hands`)."""
     return (
         f"hole-filled closed mesh: its software bridged the gaps narrower than a "
         f"{radius_m * 1000:.0f} mm ball (armpits, crotch, between fingers and toes); the "
         f"{bridged:,} template vertices under the bridges keep the body prior's skin, and so do "
         f"the {rounded:,} of convex detail narrower than its resolution (a "
         f"{rounded_radius_m * 1000:.0f} mm ball inside: nose, lips, chin, ears' rims), which it "
-        "rounds off. Such meshes "
-        "also smooth and shrink small parts and inflate fused hands, so the hands' and feet's "
+        f"rounds off, and the {mittens:,} of the open hands and the "
+        f"{MITTEN_WRIST_BAND_M * 100:.0f} cm of forearm next to them, which its fused mittens "
+        "inflate. Such meshes "
+        "also smooth and shrink small parts, so the hands' and feet's "
         "correspondence is less certain than on a raw scan (fits of a 10-14 mm closed mesh and "
         "of the raw scan of one body put the hands 5 mm, the feet 4 mm apart on average)"
     )
@@ -470,7 +478,11 @@ def iter_fit(
             r_in = ROUNDED_OFF_PER_RESOLUTION * index.resolution_m
             rounded = rounded_off(body.V, tpl.F, r_in, vertices=np.flatnonzero(dm))
             dm = dm & ~rounded
-            report.notes.append(closed_mesh_note(r, int(under.sum()), int(rounded.sum()), r_in))
+            mittens = mitten_hands(tpl, PriorOptions.of(prior_options).fists) & dm
+            dm = dm & ~mittens
+            report.notes.append(
+                closed_mesh_note(r, int(under.sum()), int(rounded.sum()), r_in, int(mittens.sum()))
+            )
         if (dec := decimated_mesh_note(index)) is not None:
             report.notes.append(dec)
     full = replace(ops.full, V=Vs, data_mask=dm)

@@ -126,6 +126,7 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
     from core.registration.closed_concavities import (
         ROUNDED_OFF_PER_RESOLUTION,
         closed_over,
+        mitten_hands,
         rounded_off,
     )
     from core.registration.correspondence import ScanIndex
@@ -145,7 +146,6 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
         assert index.closing_radius_m >= 0.008
         r = index.closing_radius_m
         assert not takes[closed_over(res.body_prior.X, tpl.F, r) & dmask].any()
-        assert takes[dmask & ~under].mean() > 0.8
         assert any(n.startswith("hole-filled closed mesh: ") and f"{r * 1000:.0f} mm ball" in n
                    for n in res.report.notes), res.report.notes  # fmt: skip
         # convex detail finer than the mesh (its nose, lips, chin) keeps the body prior's too
@@ -153,8 +153,42 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
         rounded = rounded_off(res.body_prior.X, tpl.F, r_in) & dmask
         assert rounded.sum() > 100 and not takes[rounded].any()
         assert any("of convex detail narrower than its resolution" in n for n in res.report.notes)
+        # the fused mittens' hands and wrists keep the body prior's too (neither hand a fist)
+        mittens = mitten_hands(tpl) & dmask
+        assert mittens.sum() > 500 and not takes[mittens].any()
+        rest = dmask & ~under & ~rounded & ~mittens
+        assert takes[rest].mean() > 0.8  # the rest of the body keeps its data
+        assert any("cm of forearm next to them, which its fused mittens inflate" in n
+                   for n in res.report.notes)  # fmt: skip
     else:
+        palms = (tpl.part_mask("hand_L") | tpl.part_mask("hand_R")) & dmask
+        assert takes[palms].mean() > 0.5, takes[palms].mean()  # a raw scan's hands are the skin
         assert takes[under].mean() > 0.5, takes[under].mean()
         nose = np.linalg.norm(truth - truth[tpl.landmarks["Pronasale"]], axis=1) < 0.015
         assert takes[nose & dmask].mean() > 0.8  # a raw scan's nose is the skin
         assert not any(n.startswith("hole-filled closed mesh") for n in res.report.notes)
+
+
+def test_mitten_hands_are_the_hands_and_their_wrists_but_a_fists():
+    """The hands and the forearm within MITTEN_WRIST_BAND_M of them (on the template), not the
+    elbows nor the rest of the body; a fisted side (its curled fingers place the fist) keeps
+    its data."""
+    from scipy.spatial import cKDTree
+
+    from core.registration.closed_concavities import MITTEN_WRIST_BAND_M, mitten_hands
+    from core.template import load_template
+
+    tpl = load_template()
+    V = np.asarray(tpl.V)
+    m = mitten_hands(tpl)
+    for x in "LR":
+        hand, fore = tpl.part_mask(f"hand_{x}"), tpl.part_mask(f"forearm_{x}")
+        assert m[hand].all()
+        d = cKDTree(V[hand]).query(V[fore])[0]
+        assert m[fore][d < MITTEN_WRIST_BAND_M * 0.9].all()
+        assert not m[fore][d > MITTEN_WRIST_BAND_M * 1.1].any()
+        assert 0 < m[fore].mean() < 0.5  # the wrist's end of the forearm, not the elbow's
+    others = ~np.any([tpl.part_mask(f"{p}_{x}") for p in ("hand", "forearm") for x in "LR"], 0)
+    assert not m[others].any()
+    fist_l = mitten_hands(tpl, "L")
+    assert not fist_l[tpl.part_mask("hand_L")].any() and fist_l[tpl.part_mask("hand_R")].all()
