@@ -262,17 +262,18 @@ def normal_line_targets(
     max_offset: float,
     smoother: sp.csr_matrix | None = None,
     weights: np.ndarray | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """The data term's targets moved onto the body prior's normal lines.
 
     Each target (n, 3) is replaced by the point of the line through the body prior's vertex
     ``X0`` (n, 3) along its unit normal ``N0`` (n, 3) at the target's offset along that normal:
     the data say how far out the skin lies, the body prior where along the surface it belongs.
-    Where the target lies farther than ``max_offset`` (metres) from that line the body prior is
-    off there and the target is kept. With ``smoother`` ((n, n), :func:`offset_smoother`) the
-    offsets are its weighted means (``weights`` (n,): the data's, 0 where none), so that a
-    coarse scan sets only what it resolves and the body prior keeps its finer detail.
-    Returns the targets (n, 3).
+    A target farther than ``max_offset`` (metres) from that line is kept as it is and flagged:
+    it is no skin over the vertex (the caller drops it). With ``smoother`` ((n, n),
+    :func:`offset_smoother`) the offsets are its weighted means (``weights`` (n,): the data's,
+    0 where none) over the flagged-near targets, so that a coarse scan sets only what it
+    resolves and the body prior keeps its finer detail.
+    Returns the targets (n, 3) and (n,) bool: those within ``max_offset`` of their line.
     """
     d = np.einsum("ij,ij->i", targets - X0, N0)
     on_line = X0 + d[:, None] * N0
@@ -282,7 +283,7 @@ def normal_line_targets(
         num, den = smoother @ (w * d), smoother @ w
         d = np.where(den > 0, num / np.where(den > 0, den, 1.0), d)
         on_line = X0 + d[:, None] * N0
-    return np.where(near[:, None], on_line, targets)
+    return np.where(near[:, None], on_line, targets), near
 
 
 def offset_smoother(X0: np.ndarray, N0: np.ndarray, sigma: float) -> sp.csr_matrix:

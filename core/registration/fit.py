@@ -251,9 +251,13 @@ def sole_band(template: Template) -> np.ndarray:
 #: ``bench.realworld`` varied 40 as landed (with the hands' corrections from 2 mm): twins 3.63 ->
 #: 3.58, correspondence 7.16 -> 7.07 mm.
 NORMAL_LINE_FREE_PARTS = ("hand_L", "hand_R", "foot_L", "foot_R")
-#: a target farther than this (metres) from the body prior's normal line is kept as matched: the
-#: body prior is off there (a heavy body's crotch: targets on the normal line put vertices
-#: 2-10 cm off the scan, the fit->scan p95 7.3 -> 10.7 mm)
+#: A target farther than this (metres) from the body prior's normal line is dropped: the scan
+#: shows no skin over the vertex there (a heavy body's crotch, thighs that touch: on the normal
+#: line such targets put vertices 2-10 cm off the scan, fit->scan p95 7.3 -> 10.7 mm). They were
+#: kept as matched, and slid the crotch along the surface 2-25 mm, on 0, 4 and 28 of the twin
+#: diagnostic's 8 bodies away from the truth (closed_lowres/raw-28, BMI 39: crotch 27 -> 35 /
+#: 30 -> 39 mm off). Dropped: twins 3.02 -> 2.96 mm, correspondence closed / raw 6.35 / 5.52
+#: -> 6.30 / 5.46 mm, fit->scan raw 1.83 -> 1.68 mm, scan->fit p95 unchanged.
 NORMAL_LINE_MAX_OFFSET_M = 0.01
 #: The normal lines' offsets are averaged over the body prior's surface (Gaussian, this many
 #: times the scan's detail ``ScanIndex.resolution_m``): the scan sets the skin where it resolves
@@ -857,10 +861,11 @@ def one_stage(
             if state.normal_lines is not None:
                 X0, N0, on = (a[level.vertex_ids] for a in state.normal_lines)
                 smooth = state.offset_smoother if level is full else None
-                corr.targets[on] = normal_line_targets(
+                corr.targets[on], near = normal_line_targets(
                     corr.targets[on], X0[on], N0[on], NORMAL_LINE_MAX_OFFSET_M,
                     smooth, w[on],
                 )  # fmt: skip
+                w[np.flatnonzero(on)[~near]] = 0.0  # no skin over the vertex: no data
             if state.toe_guard is not None:  # a toe's data on the other foot is no toe's
                 toe_side, foot_side = state.toe_guard
                 vid = level.vertex_ids

@@ -244,10 +244,11 @@ def test_normal_line_targets_keep_the_prior_along_the_surface():
     X0 = np.zeros((3, 3))
     N0 = np.tile([0.0, 0.0, 1.0], (3, 1))
     T = np.array([[0.004, -0.003, 0.002], [0.02, 0.0, -0.001], [0.0, 0.0, -0.005]])
-    got = normal_line_targets(T, X0, N0, max_offset=0.01)
+    got, near = normal_line_targets(T, X0, N0, max_offset=0.01)
     assert np.allclose(got[0], [0.0, 0.0, 0.002])  # 5 mm along the surface: on the line
-    assert np.allclose(got[1], T[1])  # 20 mm along it: the prior is off there, kept
+    assert np.allclose(got[1], T[1]) and not near[1]  # 20 mm along it: no skin there, flagged
     assert np.allclose(got[2], T[2])  # already on the line
+    assert near[0] and near[2]
 
 
 def test_offset_smoothing_keeps_what_the_scan_resolves_and_leaves_finer_detail_to_the_prior():
@@ -271,19 +272,20 @@ def test_offset_smoothing_keeps_what_the_scan_resolves_and_leaves_finer_detail_t
     w = np.ones(2 * n)
     w[centre + 1] = 0.0  # its neighbour has no data: its offset is not counted
     d[centre + 1] = 0.05
-    got = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1, W, w)
+    got, _ = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1, W, w)
     off = np.einsum("ij,ij->i", got - X0, N0)
     far = np.linalg.norm(P[:, :2], axis=1) > 0.008  # away from the bump
     assert np.allclose(off[:n][far], 0.002)  # the uniform offset stays
     assert np.allclose(off[n:], 0.004)  # the other sheet keeps its own
     assert 0.002 < off[centre] < 0.002 + 0.3 * 0.003  # the bump mostly smoothed away
-    without = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1)
+    without, _ = normal_line_targets(X0 + d[:, None] * N0, X0, N0, 0.1)
     assert np.allclose(np.einsum("ij,ij->i", without - X0, N0), d)  # no smoother: as matched
 
 
 def test_refinement_after_a_body_prior_moves_the_skin_along_its_normals(case, monkeypatch):
     """After a body prior the data term holds torso, arms, legs and head on the body prior's
-    normal lines (``NORMAL_LINE_MAX_OFFSET_M`` 0: every target as matched, for comparison)."""
+    normal lines (every part free of them, ``NORMAL_LINE_FREE_PARTS``: every target as matched,
+    for comparison)."""
     import core.registration.fit as fit_mod
 
     tpl = load_template()
@@ -302,7 +304,7 @@ def test_refinement_after_a_body_prior_moves_the_skin_along_its_normals(case, mo
         return float(np.linalg.norm(t[~free], axis=1).mean())
 
     held = fit(case.scan, case.markers, schedule=Schedule.fast(), retry=False)
-    monkeypatch.setattr(fit_mod, "NORMAL_LINE_MAX_OFFSET_M", 0.0)
+    monkeypatch.setattr(fit_mod, "NORMAL_LINE_FREE_PARTS", tuple(tpl.part_names))
     slid = fit(case.scan, case.markers, schedule=Schedule.fast(), retry=False)
     # measured: 0.21 vs 0.49 mm along the surface; correspondence 2.77 vs 2.82 mm
     assert along(held) < 0.6 * along(slid), (along(held), along(slid))
