@@ -51,6 +51,7 @@ from core.registration.operators import (
 )
 from core.registration.quality import (
     LOST_SCAN_TO_FIT_M,
+    MAX_UNSEEN_SHARE,
     SAMPLE_POINTS,
     FitQuality,
     assess_fit,
@@ -791,6 +792,9 @@ class _StageState:
     #: the smoothing of the normal lines' offsets over the ``on`` vertices (full resolution),
     #: where its scale reaches :data:`OFFSET_SMOOTHING_MIN_M` (:func:`offset_smoother`)
     offset_smoother: sp.csr_matrix | None = None
+    #: full-resolution vertices whose data target lay off the body prior's normal line in the
+    #: last iteration (no skin over them: dropped), or None
+    no_skin: np.ndarray | None = None
 
     def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
         """Switch to resolution ``want`` (start from A0, or blend low-resolution affines up)."""
@@ -865,7 +869,10 @@ def one_stage(
                     corr.targets[on], X0[on], N0[on], NORMAL_LINE_MAX_OFFSET_M,
                     smooth, w[on],
                 )  # fmt: skip
-                w[np.flatnonzero(on)[~near]] = 0.0  # no skin over the vertex: no data
+                far = np.flatnonzero(on)[~near]
+                w[far] = 0.0  # no skin over the vertex: no data
+                if level is full:
+                    state.no_skin = far
             if state.toe_guard is not None:  # a toe's data on the other foot is no toe's
                 toe_side, foot_side = state.toe_guard
                 vid = level.vertex_ids
@@ -944,6 +951,17 @@ def final_report(
         project=False,
     )  # fmt: skip
     weights_full = final.weights * full.data_mask
+    unseen = np.zeros(full.n, bool)
+    if state.no_skin is not None and len(state.no_skin):
+        unseen[state.no_skin] = True
+        weights_full[unseen] = 0.0
+        report.notes.append(
+            f"refinement: {int(unseen.sum()):,} vertices where the scan shows no skin over the "
+            f"body prior (their closest data lay over {NORMAL_LINE_MAX_OFFSET_M * 1000:.0f} mm "
+            "along the surface: thighs or folds pressed together, a heavy body's crotch, "
+            "occluded skin) keep the body prior's; the quality check's fit→scan p95 leaves "
+            f"them out where they are at most {MAX_UNSEEN_SHARE:.0%} of a part"
+        )
     report.no_data_fraction = float(np.mean(~(final.weights > 0)))
     report.template_region_fraction = float(np.mean(~full.data_mask))
     if not assess:
@@ -964,6 +982,7 @@ def final_report(
         scan_to_fit=d,
         sample_ids=sample,
         reference=body.V if shape_prior else None,
+        unseen=unseen,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
