@@ -524,3 +524,39 @@ def test_a_hand_missing_from_the_scan_is_named_missing_not_a_fist(tmp_path):
     assert hand[0].startswith("hand_L: only 0 scan points near it (missing from the scan"), hand
     assert not any("fitted to a fist" in r for r in hand), hand
     assert q.parts["hand_R"].quality != "failed" and q.parts["torso"].quality == "good", q.reasons
+
+
+def test_skin_the_scan_does_not_show_is_left_out_of_fit_to_scan_unless_most_of_the_part(
+    case, fitted
+):
+    """``assess_fit(unseen=)``: vertices the refinement found no skin over (thighs pressed
+    together, ``bench.realworld`` raw-31) are left out of their part's fit→scan p95 while they
+    are few (:data:`MAX_UNSEEN_SHARE`); a part mostly without skin over it is misplaced, and
+    every vertex counts."""
+    from core.geometry import vertex_normals
+    from core.registration.quality import MAX_UNSEEN_SHARE
+
+    tpl = load_template()
+    X = fitted.vertices.copy()
+    leg = np.flatnonzero(_mask("leg_L"))
+    # the inner tenth of the left leg (nearest the body's midline) pushed 4 cm into the body
+    mid = X[:, 0].mean()
+    inner = leg[np.argsort(np.abs(X[leg, 0] - mid))[: len(leg) // 10]]
+    N = vertex_normals(X, np.asarray(tpl.F, np.int64))
+    Y = X.copy()
+    Y[inner] -= 0.04 * N[inner]
+    unseen = np.zeros(len(X), bool)
+    unseen[inner] = True
+    counted = assess_fit(case.scan, Y).parts["leg_L"].fit_to_scan_p95_m
+    left_out = assess_fit(case.scan, Y, unseen=unseen).parts["leg_L"].fit_to_scan_p95_m
+    assert counted > THRESHOLDS["fit_to_scan_p95_m"].suspect, counted
+    assert left_out < 0.3 * THRESHOLDS["fit_to_scan_p95_m"].suspect, left_out
+    # the whole leg 4 cm off its data, all of it unseen: every vertex counts, not good
+    Z = X.copy()
+    Z[leg] += [0.0, 0.0, 0.04]
+    whole = np.zeros(len(X), bool)
+    whole[leg] = True
+    assert whole[leg].mean() > MAX_UNSEEN_SHARE
+    q = assess_fit(case.scan, Z, unseen=whole)
+    assert q.parts["leg_L"].fit_to_scan_p95_m > THRESHOLDS["fit_to_scan_p95_m"].suspect
+    assert q.parts["leg_L"].quality != "good", q.reasons
