@@ -473,6 +473,7 @@ def iter_fit(
     # the data mask of this fit: a fist's curled fingers take data (see :func:`fit_data_mask`);
     # after a body prior the feet's lower part (toes included) is the body prior's
     toes = body.prior is None and toes_take_data(index)
+    mitten_sides = ""  # hands that keep the body prior inside a closed mesh's mittens
     dm = fit_data_mask(ops, PriorOptions.of(prior_options).fists if shape_prior else "", toes)
     if body.prior is not None:
         dm = dm & ~sole_band(tpl)
@@ -483,8 +484,10 @@ def iter_fit(
             r_in = ROUNDED_OFF_PER_RESOLUTION * index.resolution_m
             rounded = rounded_off(body.V, tpl.F, r_in, vertices=np.flatnonzero(dm))
             dm = dm & ~rounded
-            mittens = mitten_hands(tpl, PriorOptions.of(prior_options).fists) & dm
+            fists = PriorOptions.of(prior_options).fists
+            mittens = mitten_hands(tpl, fists) & dm
             dm = dm & ~mittens
+            mitten_sides = "".join(x for x in "LR" if x not in fists)
             report.notes.append(
                 closed_mesh_note(r, int(under.sum()), int(rounded.sum()), r_in, int(mittens.sum()))
             )
@@ -498,6 +501,7 @@ def iter_fit(
         else None
     )
     state = _StageState()
+    state.mitten_sides = mitten_sides
     if toes:  # a toe's pairs with the other foot's data are dropped
         state.toe_guard = feet_sides(len(dm))
     if body.prior is not None:  # the body prior places the skin along the surface
@@ -795,6 +799,8 @@ class _StageState:
     #: full-resolution vertices whose data target lay off the body prior's normal line in the
     #: last iteration (no skin over them: dropped), or None
     no_skin: np.ndarray | None = None
+    #: the sides ("L", "R") whose hands keep the body prior inside a closed mesh's mittens
+    mitten_sides: str = ""
 
     def enter(self, want: ResolutionLevel, A0: np.ndarray, ops: TemplateOperators) -> None:
         """Switch to resolution ``want`` (start from A0, or blend low-resolution affines up)."""
@@ -983,6 +989,8 @@ def final_report(
         sample_ids=sample,
         reference=body.V if shape_prior else None,
         unseen=unseen,
+        mittens=state.mitten_sides,
+        mitten_m=index.closing_radius_m,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())

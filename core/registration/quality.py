@@ -353,13 +353,19 @@ def _limits(part: str) -> dict[str, Threshold]:
     }
 
 
-def _judge(part: str, figures: dict[str, float]) -> tuple[Verdict, list[str], set[str]]:
-    """The part's verdict, the reasons and the figures beyond a limit."""
+def _judge(
+    part: str, figures: dict[str, float], allowance: dict[str, float] | None = None
+) -> tuple[Verdict, list[str], set[str]]:
+    """The part's verdict, the reasons and the figures beyond a limit (``allowance``: figure ->
+    metres added to both its limits)."""
     verdict: Verdict = "good"
     reasons: list[str] = []
     keys: set[str] = set()
     rank = {"good": 0, "suspect": 1, "failed": 2}
     for key, lim in _limits(part).items():
+        if allowance and key in allowance:
+            a = allowance[key]
+            lim = Threshold(lim.suspect + a, lim.failed + a, lim.higher_is_worse)
         v = figures[key]
         if not np.isfinite(v):
             continue
@@ -741,6 +747,8 @@ def assess_fit(
     sample_ids: np.ndarray | None = None,
     reference: np.ndarray | None = None,
     unseen: np.ndarray | None = None,
+    mittens: str = "",
+    mitten_m: float = 0.0,
 ) -> FitQuality:
     """Judge the fitted body ``X`` (13380, 3), metres, against ``scan`` (same frame).
 
@@ -750,6 +758,10 @@ def assess_fit(
     (for ``area_change``; default the template). ``unseen`` (13380,) bool: vertices the scan
     shows no skin over (the refinement kept the body prior's there), left out of a part's
     ``fit_to_scan_p95_m`` where they are at most :data:`MAX_UNSEEN_SHARE` of its vertices.
+    ``mittens`` (sides "L", "R"): hands that keep the body prior's skin inside a closed mesh's
+    fused mitten (:func:`core.registration.closed_concavities.mitten_hands`), whose
+    ``scan_to_fit_p95_m`` limits rise by ``mitten_m`` (metres: the mesh's closing radius, as far
+    as its webbing between thumb and fingers reaches from the skin).
     Returns a :class:`FitQuality` (thresholds: module docstring).
     """
     tpl = template or load_template()
@@ -836,7 +848,8 @@ def assess_fit(
             figures["feet_apart_m"] = apart
         elif name == "torso":
             figures["sternum_proportion"] = sternum_proportion(X, tpl)
-        pv, pr, flagged = _judge(name, figures)
+        mitten = name.startswith("hand_") and name[-1] in mittens
+        pv, pr, flagged = _judge(name, figures, {"scan_to_fit_p95_m": mitten_m} if mitten else None)
         # suspect only where the scan cannot tell (checked again below: lost or without data)
         scan_cannot_tell = AMBIGUOUS_FIGURES[0] in flagged and flagged <= set(AMBIGUOUS_FIGURES)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0

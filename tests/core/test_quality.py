@@ -560,3 +560,42 @@ def test_skin_the_scan_does_not_show_is_left_out_of_fit_to_scan_unless_most_of_t
     q = assess_fit(case.scan, Z, unseen=whole)
     assert q.parts["leg_L"].fit_to_scan_p95_m > THRESHOLDS["fit_to_scan_p95_m"].suspect
     assert q.parts["leg_L"].quality != "good", q.reasons
+
+
+def test_a_closed_meshs_mitten_over_a_hand_kept_from_the_body_prior_is_allowed_its_webbing(
+    case, fitted
+):
+    """A closed mesh's fused mitten lies outside a hand the refinement keeps from the body
+    prior (``closed_concavities.mitten_hands``), its webbing between thumb and fingers as far
+    as the mesh's closing ball reaches: scan points 18 mm off the left hand make it `suspect`,
+    unless it is a mitten of a mesh closed by a 12 mm ball (``mittens``, ``mitten_m``); the
+    right hand, not a mitten, is judged as ever."""
+    from dataclasses import replace
+
+    from core.geometry import vertex_normals
+
+    tpl = load_template()
+    X = fitted.vertices
+    N = vertex_normals(X, np.asarray(tpl.F, np.int64))
+    rng = np.random.default_rng(0)
+    webs = []
+    for side in "LR":
+        hand = np.flatnonzero(tpl.part_mask(f"hand_{side}"))
+        pick = rng.choice(hand, len(hand) // 5, replace=False)
+        webs.append((X[pick] + 0.018 * N[pick], N[pick]))
+    P = np.concatenate([case.scan.V] + [w[0] for w in webs])
+    scan = replace(
+        case.scan,
+        V=P,
+        F=None,
+        normals=np.concatenate([case.scan.normals] + [w[1] for w in webs]),
+        confidence=np.ones(len(P)),
+        boundary=np.zeros(len(P), bool),
+    )
+    plain = assess_fit(scan, X)
+    assert plain.parts["hand_L"].quality == plain.parts["hand_R"].quality == "suspect"
+    assert any(r.startswith("hand_L: scan→fit p95") for r in plain.reasons), plain.reasons
+    mitten = assess_fit(scan, X, mittens="L", mitten_m=0.012)
+    assert mitten.parts["hand_L"].quality == "good", mitten.reasons
+    assert mitten.parts["hand_R"].quality == "suspect"
+    assert mitten.parts["hand_L"].scan_to_fit_p95_m == plain.parts["hand_L"].scan_to_fit_p95_m
