@@ -302,7 +302,7 @@ def closed_mesh_note(
         "inflate. Such meshes "
         "also smooth and shrink small parts, so the hands' and feet's "
         "correspondence is less certain than on a raw scan (fits of a 10-14 mm closed mesh and "
-        "of the raw scan of one body put the hands 5 mm, the feet 4 mm apart on average)"
+        "of the raw scan of one body put the hands 5 mm, the feet 3 mm apart on average)"
     )
 
 
