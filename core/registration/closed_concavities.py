@@ -69,6 +69,11 @@ ROUNDED_OFF_DEPTH_M = 0.001
 #: fingers are what places the fist: twins 3.05 without it). In the body prior as well (the
 #: band's data rows): 3.03, worse.
 MITTEN_WRIST_BAND_M = 0.03
+#: ... and only its vertices whose body-prior position lies within this (metres) of the scan:
+#: the mitten's hull 4-6 mm out. A hand the body prior put elsewhere takes the scan's data and
+#: comes back (closed_hair-1's fast marker fit: its hands 63 / 69 mm off the truth without data,
+#: under 50 with it).
+MITTEN_ON_SCAN_M = 0.01
 
 
 def inaccessible(P: np.ndarray, N: np.ndarray, tree: cKDTree, r: float, tol: float) -> np.ndarray:

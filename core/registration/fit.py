@@ -26,6 +26,7 @@ from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.closed_concavities import (
     MIN_CLOSING_RADIUS_M,
+    MITTEN_ON_SCAN_M,
     MITTEN_WRIST_BAND_M,
     ROUNDED_OFF_PER_RESOLUTION,
     closed_over,
@@ -486,6 +487,10 @@ def iter_fit(
             dm = dm & ~rounded
             fists = PriorOptions.of(prior_options).fists
             mittens = mitten_hands(tpl, fists) & dm
+            # only where the body prior's hand lies in the mitten: a hand it misplaced (a fast
+            # marker fit's) takes the scan's data to come back
+            ids = np.flatnonzero(mittens)
+            mittens[ids] = index.tree.query(body.V[ids])[0] < MITTEN_ON_SCAN_M
             dm = dm & ~mittens
             mitten_sides = "".join(x for x in "LR" if x not in fists)
             report.notes.append(

@@ -124,6 +124,7 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
     under the mesh's bridges end with no data weight, the rest of the body keeps its data; its
     raw twin (no bridges) keeps data on most of those vertices."""
     from core.registration.closed_concavities import (
+        MITTEN_ON_SCAN_M,
         ROUNDED_OFF_PER_RESOLUTION,
         closed_over,
         mitten_hands,
@@ -153,9 +154,12 @@ def test_a_closed_meshs_bridged_gaps_take_no_data(realworld_case, kind):
         rounded = rounded_off(res.body_prior.X, tpl.F, r_in) & dmask
         assert rounded.sum() > 100 and not takes[rounded].any()
         assert any("of convex detail narrower than its resolution" in n for n in res.report.notes)
-        # the fused mittens' hands and wrists keep the body prior's too (neither hand a fist)
+        # the fused mittens' hands and wrists keep the body prior's too (neither hand a fist),
+        # where the body prior put them in the mitten (a misplaced hand takes the data)
         mittens = mitten_hands(tpl) & dmask
-        assert mittens.sum() > 500 and not takes[mittens].any()
+        in_mitten = index.tree.query(res.body_prior.X)[0] < MITTEN_ON_SCAN_M
+        assert (mittens & in_mitten).sum() > 0.9 * mittens.sum() > 450
+        assert not takes[mittens & in_mitten].any()
         rest = dmask & ~under & ~rounded & ~mittens
         assert takes[rest].mean() > 0.8  # the rest of the body keeps its data
         assert any("cm of forearm next to them, which its fused mittens inflate" in n
