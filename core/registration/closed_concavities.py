@@ -69,11 +69,12 @@ ROUNDED_OFF_DEPTH_M = 0.001
 #: fingers are what places the fist: twins 3.05 without it). In the body prior as well (the
 #: band's data rows): 3.03, worse.
 MITTEN_WRIST_BAND_M = 0.03
-#: ... and only its vertices whose body-prior position lies within this (metres) of the scan:
-#: the mitten's hull 4-6 mm out. A hand the body prior put elsewhere takes the scan's data and
-#: comes back (closed_hair-1's fast marker fit: its hands 63 / 69 mm off the truth without data,
-#: under 50 with it).
-MITTEN_ON_SCAN_M = 0.01
+# The mittens keep the body prior's hands only in the markerless soft-marker round
+# (``fit(soft_markers=True)``), whose body prior places the hands: a marker fit's on a fast
+# schedule can leave them 6-7 cm off, and their data brings them back (closed_hair-1: hands
+# 63 / 69 mm off the truth without it, under 50 with it). Per vertex where the body prior lies
+# within 1 cm of the scan instead: twins 2.95, but hands resting on the hip took the hip's data
+# (closed_plate-27 11.35 -> 13.39 mm, closed_touching-17 4.96 -> 5.72).
 
 
 def inaccessible(P: np.ndarray, N: np.ndarray, tree: cKDTree, r: float, tol: float) -> np.ndarray:

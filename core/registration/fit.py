@@ -26,7 +26,6 @@ from core.errors import FitError, MarkerError
 from core.geometry import MeshDistance
 from core.registration.closed_concavities import (
     MIN_CLOSING_RADIUS_M,
-    MITTEN_ON_SCAN_M,
     MITTEN_WRIST_BAND_M,
     ROUNDED_OFF_PER_RESOLUTION,
     closed_over,
@@ -298,10 +297,14 @@ def closed_mesh_note(
         f"{bridged:,} template vertices under the bridges keep the body prior's skin, and so do "
         f"the {rounded:,} of convex detail narrower than its resolution (a "
         f"{rounded_radius_m * 1000:.0f} mm ball inside: nose, lips, chin, ears' rims), which it "
-        f"rounds off, and the {mittens:,} of the open hands and the "
-        f"{MITTEN_WRIST_BAND_M * 100:.0f} cm of forearm next to them, which its fused mittens "
-        "inflate. Such meshes "
-        "also smooth and shrink small parts, so the hands' and feet's "
+        "rounds off"
+        + (
+            f", and the {mittens:,} of the open hands and the {MITTEN_WRIST_BAND_M * 100:.0f} cm "
+            "of forearm next to them, which its fused mittens inflate"
+            if mittens
+            else ""
+        )
+        + ". Such meshes also smooth and shrink small parts, so the hands' and feet's "
         "correspondence is less certain than on a raw scan (fits of a 10-14 mm closed mesh and "
         "of the raw scan of one body put the hands 5 mm, the feet 3 mm apart on average)"
     )
@@ -485,14 +488,13 @@ def iter_fit(
             r_in = ROUNDED_OFF_PER_RESOLUTION * index.resolution_m
             rounded = rounded_off(body.V, tpl.F, r_in, vertices=np.flatnonzero(dm))
             dm = dm & ~rounded
+            # the markerless round's body prior places the hands (a marker fit's, on a fast
+            # schedule, can leave them 6-7 cm off: their data brings them back)
             fists = PriorOptions.of(prior_options).fists
-            mittens = mitten_hands(tpl, fists) & dm
-            # only where the body prior's hand lies in the mitten: a hand it misplaced (a fast
-            # marker fit's) takes the scan's data to come back
-            ids = np.flatnonzero(mittens)
-            mittens[ids] = index.tree.query(body.V[ids])[0] < MITTEN_ON_SCAN_M
+            mittens = mitten_hands(tpl, fists) & dm if soft_markers else np.zeros_like(dm)
             dm = dm & ~mittens
-            mitten_sides = "".join(x for x in "LR" if x not in fists)
+            if soft_markers:
+                mitten_sides = "".join(x for x in "LR" if x not in fists)
             report.notes.append(
                 closed_mesh_note(r, int(under.sum()), int(rounded.sum()), r_in, int(mittens.sum()))
             )
