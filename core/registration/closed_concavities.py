@@ -67,14 +67,9 @@ ROUNDED_OFF_DEPTH_M = 0.001
 #: from the body prior: twins 3.09 -> 3.05 mm; with this band too 3.02 (4 cm: 3.01); the
 #: closed meshes' correspondence 6.43 -> 6.35 mm. A fist's hand keeps its data (its curled
 #: fingers are what places the fist: twins 3.05 without it). In the body prior as well (the
-#: band's data rows): 3.03, worse.
+#: band's data rows): 3.03, worse. Only in the markerless soft-marker round (``core.registration.
+#: fit.iter_fit``).
 MITTEN_WRIST_BAND_M = 0.03
-# The mittens keep the body prior's hands only in the markerless soft-marker round
-# (``fit(soft_markers=True)``), whose body prior places the hands: a marker fit's on a fast
-# schedule can leave them 6-7 cm off, and their data brings them back (closed_hair-1: hands
-# 63 / 69 mm off the truth without it, under 50 with it). Per vertex where the body prior lies
-# within 1 cm of the scan instead: twins 2.95, but hands resting on the hip took the hip's data
-# (closed_plate-27 11.35 -> 13.39 mm, closed_touching-17 4.96 -> 5.72).
 
 
 def inaccessible(P: np.ndarray, N: np.ndarray, tree: cKDTree, r: float, tol: float) -> np.ndarray:

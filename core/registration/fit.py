@@ -488,12 +488,17 @@ def iter_fit(
             r_in = ROUNDED_OFF_PER_RESOLUTION * index.resolution_m
             rounded = rounded_off(body.V, tpl.F, r_in, vertices=np.flatnonzero(dm))
             dm = dm & ~rounded
-            # the markerless round's body prior places the hands (a marker fit's, on a fast
-            # schedule, can leave them 6-7 cm off: their data brings them back)
-            fists = PriorOptions.of(prior_options).fists
-            mittens = mitten_hands(tpl, fists) & dm if soft_markers else np.zeros_like(dm)
-            dm = dm & ~mittens
+            # the mittens keep the body prior's hands only in the markerless round, whose body
+            # prior places them: a marker fit's, on a fast schedule, can leave them 6-7 cm off,
+            # and their data brings them back (closed_hair-1: hands 63 / 69 mm off without it,
+            # under 50 with it). Per vertex where the body prior lies within 1 cm of the scan
+            # instead: twins 2.95, but hands resting on the hip took the hip's data
+            # (closed_plate-27 11.35 -> 13.39 mm, closed_touching-17 4.96 -> 5.72)
+            mittens = np.zeros_like(dm)
             if soft_markers:
+                fists = PriorOptions.of(prior_options).fists
+                mittens = mitten_hands(tpl, fists) & dm
+                dm = dm & ~mittens
                 mitten_sides = "".join(x for x in "LR" if x not in fists)
             report.notes.append(
                 closed_mesh_note(r, int(under.sum()), int(rounded.sum()), r_in, int(mittens.sum()))
