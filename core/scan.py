@@ -45,6 +45,20 @@ class RawMesh:
     colors: np.ndarray | None = None
     texture: ScanTexture | None = None
 
+    def surface(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(V (k, 3), F (m, 3) renumbered): the vertices a triangle uses, the points of a cloud.
+
+        A mesh's vertices that no triangle uses are no part of its surface (an exporter's
+        leftovers, a camera's or a marker's position): the frame and the body checks leave
+        them out, as :func:`core.io.prepare.prepare_scan` does."""
+        if self.F is None or not len(self.F):
+            return self.V, self.F
+        used = np.zeros(len(self.V), bool)
+        used[np.asarray(self.F).ravel()] = True
+        if used.all():
+            return self.V, self.F
+        return self.V[used], (np.cumsum(used) - 1)[self.F]
+
 
 @dataclass
 class FrameInfo:

@@ -168,7 +168,7 @@ def _load_inputs(
     if not use_markers:
         markers_file = None
     markers = {k: np.asarray(v, dtype=np.float64) for k, v in (markers_file or {}).items()}
-    frame = detect_frame(raw.V, units=scan.units, up=scan.up, markers=markers or None)
+    frame = detect_frame(raw.surface()[0], units=scan.units, up=scan.up, markers=markers or None)
     prepared = prepare_scan(raw, frame)
     from core.transfer.texture import textured_surface
 

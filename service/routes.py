@@ -190,7 +190,7 @@ def _validate_scan(form: Form, settings: Settings) -> dict[str, Any]:
             scan.path, head["format"], max_vertices=settings.max_vertices,
             max_faces=settings.max_faces, name=scan.filename, sidecar_files=False,
         )  # fmt: skip
-        detect_frame(raw.V, units=units, up=up, markers=pts)
+        detect_frame(raw.surface()[0], units=units, up=up, markers=pts)
     return {"head": head, "units": units, "up": up, "markers": markers}
 
 
@@ -496,11 +496,12 @@ def _check_markerless_scan(scan: Scan, settings: Settings, store: BlobStore) -> 
             path, scan.format, max_vertices=settings.max_vertices, max_faces=settings.max_faces,
             name=scan.filename, sidecar_files=False,
         )  # fmt: skip
-    frame = detect_frame(raw.V, units=scan.units, up=scan.up)
+    V, F = raw.surface()
+    frame = detect_frame(V, units=scan.units, up=scan.up)
     how = {k: "as uploaded" if v != "auto" else "detected" for k, v in
            (("units", scan.units), ("up", scan.up))}  # fmt: skip
     check_body_shape(
-        frame.to_canonical(raw.V), raw.F,
+        frame.to_canonical(V), F,
         frame=f"units {frame.units} ({how['units']}), up {frame.up} ({how['up']})",
     )  # fmt: skip
 

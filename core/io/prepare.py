@@ -572,7 +572,7 @@ def load_scan(
     markers = None
     if markers_path is not None:
         markers = read_markers(markers_path, valid_names=load_template().landmarks)
-    frame = detect_frame(raw.V, units=units, up=up, markers=markers)
+    frame = detect_frame(raw.surface()[0], units=units, up=up, markers=markers)
     scan = prepare_scan(raw, frame)
     how_u = "detected" if units == "auto" else "given"
     how_up = "detected" if up == "auto" else "given"

@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from bench.machine import reference_cpu
+from core.errors import UnitsError
 from core.io._geometry import edge_use_counts
 from core.io.frame import detect_frame, rotation_for_up
 from core.io.markers import write_markers_csv
@@ -50,6 +51,26 @@ def test_load_scan_mm_zup_with_markers(tmp_path):
     scan2, none = load_scan(tmp_path / "scan.ply", units="mm", up="+z")
     assert none is None and "given" in scan2.notes[0]
     np.testing.assert_allclose(scan2.V, scan.V)
+
+
+def test_unreferenced_vertices_do_not_decide_the_frame(tmp_path):
+    """An exporter's leftover vertices (no triangle uses them) spread 3x the body's size around
+    it: the units and up axis are still the body's, and the leftovers are dropped and said."""
+    R = rotation_for_up("+z")
+    Vf = (V0 @ R) * 1000.0  # millimetres, Z up
+    rng = np.random.default_rng(0)
+    lo, hi = Vf.min(0), Vf.max(0)
+    junk = lo - (hi - lo) + 3 * (hi - lo) * rng.random((5000, 3))
+    write_ply(tmp_path / "scan.ply", np.vstack([junk, Vf]), F0 + len(junk))
+    with pytest.raises(UnitsError, match="cannot tell the units"):  # the junk would decide
+        detect_frame(np.vstack([junk, Vf]))
+    scan, _ = load_scan(tmp_path / "scan.ply")
+    assert scan.frame.units == "mm" and scan.frame.up == "+z"
+    np.testing.assert_allclose(scan.V, V0, atol=1e-9)
+    assert "dropped 5,000 vertices not used by any triangle" in scan.notes
+    V, F = RawMesh(V=np.vstack([junk, Vf]), F=F0 + len(junk)).surface()
+    np.testing.assert_array_equal(V, Vf)
+    np.testing.assert_array_equal(F, F0)
 
 
 def test_mesh_normals_outward_and_inward_winding_flipped():
