@@ -29,6 +29,7 @@ from core.registration.closed_concavities import (
     MITTEN_WRIST_BAND_M,
     ROUNDED_OFF_PER_RESOLUTION,
     closed_over,
+    fist_bridges,
     mitten_hands,
     rounded_off,
 )
@@ -679,9 +680,12 @@ def initial_body(
     marker_pos = np.array([markers[k] for k in align.used], dtype=np.float64).reshape(-1, 3)
 
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
+        dm = fit_data_mask(ops, options.fists, toes_take_data(index))
+        if options.fists and index.closing_radius_m >= MIN_CLOSING_RADIUS_M:
+            dm = dm & ~fist_bridges(options.fists, index.closing_radius_m)  # a fused fist's
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
-            data_mask=fit_data_mask(ops, options.fists, toes_take_data(index)),
+            data_mask=dm,
             max_distance=max_distance,
             marker_floor=floor,
             vertex_weight=vw, measure=False, **options.kwargs(),

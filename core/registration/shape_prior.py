@@ -557,6 +557,33 @@ def _articulation() -> _Articulation:
     return _Articulation(load_rig(), POSE_BONES)
 
 
+def _fisted_articulation(V0: np.ndarray, fists: str) -> _Articulation:
+    """The body prior's articulation with the fingers of ``fists`` (sides "L", "R") curled
+    into a fist (:data:`FIST_CURL_DEG`, held fixed) on the body V0 (n, 3); the cached one
+    when there are none."""
+    art = _articulation()
+    if not fists:
+        return art
+    art = copy.copy(art)
+    J0 = joint_positions(V0, rig=art.rig)
+    tails = joint_positions(V0, rig=art.rig, ends="tail")
+    art.fixed = {  # a new dict: the cached articulation keeps its open hands
+        name: R
+        for x in fists
+        for name, R in finger_rotations(
+            J0, tails, f".{x}", True, FIST_CURL_DEG, rig=art.rig
+        ).items()
+    }
+    return art
+
+
+def fisted_rest(V0: np.ndarray, fists: str) -> np.ndarray:
+    """(n, 3): the body V0 (n, 3, metres) in its rest pose with the hands of ``fists``
+    (sides "L", "R") curled into the body prior's fist."""
+    art = _fisted_articulation(V0, fists)
+    return art.pose(V0, np.broadcast_to(np.eye(3), (len(POSE_BONES), 3, 3)).copy())[0]
+
+
 def _bone_metrics(
     art: _Articulation, V0: np.ndarray, weights: tuple[tuple[str, float, float], ...]
 ) -> list[tuple[int, np.ndarray]]:
@@ -859,18 +886,7 @@ def fit_body_prior(
     def shaped(c: np.ndarray) -> np.ndarray:
         return V0 + (U2 @ c).reshape(n, 3)
 
-    art = _articulation()
-    if fists:  # the cached articulation with these hands' fingers curled (held fixed)
-        art = copy.copy(art)
-        J0 = joint_positions(V0, rig=art.rig)
-        tails = joint_positions(V0, rig=art.rig, ends="tail")
-        art.fixed = {  # a new dict: the cached articulation keeps its open hands
-            name: R
-            for x in fists
-            for name, R in finger_rotations(
-                J0, tails, f".{x}", True, FIST_CURL_DEG, rig=art.rig
-            ).items()
-        }
+    art = _fisted_articulation(V0, fists)
     B = len(POSE_BONES)
     mask = np.ones(n, bool) if data_mask is None else np.asarray(data_mask, bool)
     if not sole_data:

@@ -197,3 +197,27 @@ def test_mitten_hands_are_the_hands_and_their_wrists_but_a_fists():
     assert not m[others].any()
     fist_l = mitten_hands(tpl, "L")
     assert not fist_l[tpl.part_mask("hand_L")].any() and fist_l[tpl.part_mask("hand_R")].all()
+
+
+def test_fist_bridges_are_the_fisted_hands_palm_side():
+    """A fused fist's bridged vertices: only the fisted hand's, the palm and the curled fingers'
+    pads (the palm's centre, not the knuckles' backs), more under a wider ball."""
+    from core.registration.closed_concavities import fist_bridges
+    from core.template import load_template
+
+    tpl = load_template()
+    m = fist_bridges("L", 0.008)
+    hand_l, hand_r = tpl.part_mask("hand_L"), tpl.part_mask("hand_R")
+    assert not m[~hand_l].any() and 0.15 < m[hand_l].mean() < 0.5
+    assert fist_bridges("L", 0.006).sum() < m.sum() < fist_bridges("L", 0.010).sum()
+    both = fist_bridges("LR", 0.008)
+    assert both[hand_r].sum() == m[hand_l].sum() and (both & hand_l).sum() == m.sum()
+    # one side of the hand (the palm's, facing the body: -x and down on the left hand in the
+    # rest A-pose), not all round it: their open-hand normals agree (mean 0.47 long; the rest of
+    # the hand's point the other way)
+    from core.geometry import vertex_normals
+
+    N = vertex_normals(np.asarray(tpl.V), np.asarray(tpl.F))
+    side = N[m].mean(0)
+    assert np.linalg.norm(side) > 0.35 and side[0] < 0 and side[1] < 0
+    assert side @ N[hand_l & ~m].mean(0) < 0
