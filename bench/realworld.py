@@ -22,7 +22,8 @@ vertices, and without the hands, which a closed mesh turns into mittens). Result
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers]
-[--heavy | --booth | --wide | --palms | --decimated] [--jobs 1] [--kinds K1,K2] [--seeds S1,S2]``.
+[--heavy | --booth | --wide | --palms | --tilted | --decimated] [--jobs 1] [--kinds K1,K2]
+[--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -652,6 +653,12 @@ def main(argv: list[str] | None = None) -> int:
         "meshes, point clouds in turn) instead of the varied set",
     )
     ap.add_argument(
+        "--tilted",
+        action="store_true",
+        help="--cases bodies in a handheld scanner's frame, 5-45° off every file axis (raw "
+        "scans, point clouds and closed meshes in turn) instead of the varied set",
+    )
+    ap.add_argument(
         "--palms",
         action="store_true",
         help="--cases bodies with both palms turned 45-100° forwards or backwards (closed_palms/"
@@ -691,14 +698,16 @@ def main(argv: list[str] | None = None) -> int:
         decimated_cases,
         heavy_cases,
         palm_cases,
+        tilted_cases,
         wide_cases,
     )
 
-    if args.heavy + args.booth + args.wide + args.palms + args.decimated > 1 + (
+    if args.heavy + args.booth + args.wide + args.palms + args.decimated + args.tilted > 1 + (
         args.booth and args.decimated
     ):
         ap.error(
-            "--heavy, --booth, --wide, --palms and --decimated are different sets: choose one "
+            "--heavy, --booth, --wide, --palms, --tilted and --decimated are different sets: "
+            "choose one "
             "(or --booth --decimated: the booth subjects decimated)"
         )
     if args.booth and args.decimated:
@@ -707,6 +716,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = decimated_cases(args.cases)
     elif args.palms:
         cases = palm_cases(args.cases)
+    elif args.tilted:
+        cases = tilted_cases(args.cases)
     elif args.booth:
         cases = booth_cases(args.cases)
     elif args.wide:
@@ -739,6 +750,7 @@ def main(argv: list[str] | None = None) -> int:
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
+        f"{'-tilted' if args.tilted else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )

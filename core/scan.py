@@ -64,7 +64,10 @@ class RawMesh:
 class FrameInfo:
     """How a file's coordinates were mapped to bodyspace's frame (metres, +Y up).
 
-    ``x_canonical = scale * R @ x_file``; ``R`` (3, 3) is a signed axis permutation.
+    ``x_canonical = scale * R @ x_file``; ``R`` (3, 3) is a proper rotation: the signed axis
+    permutation of ``up`` (``core.io.frame.rotation_for_up``), then, for a body standing
+    ``tilt_deg`` off that axis (a handheld scanner's arbitrary frame), the rotation that levels
+    it (``core.io.frame.detect_frame``).
     """
 
     units: str  # "m", "cm", "mm" or "in" (core.io.frame.UNITS)
@@ -72,6 +75,20 @@ class FrameInfo:
     scale: float
     R: np.ndarray
     detected: bool  # True when units/up were auto-detected rather than given
+    tilt_deg: float = 0.0  # degrees the body's axis stood off ``up`` (0: not levelled)
+
+    def describe(self, units_option: str, up_option: str) -> str:
+        """The report's note on this frame, given the units and up options (``"auto"``:
+        detected), e.g. ``units mm (detected), up axis +z (given)``."""
+        how_u = "detected" if units_option == "auto" else "given"
+        how_up = "detected" if up_option == "auto" else "given"
+        out = f"units {self.units} ({how_u}), up axis {self.up} ({how_up})"
+        if self.tilt_deg:
+            out += (
+                f"; the body stood {self.tilt_deg:.1f}° off that axis: the scan was levelled "
+                "(turned to stand upright, and the fit with it)"
+            )
+        return out
 
     def to_canonical(self, X: np.ndarray) -> np.ndarray:
         """Map (k, 3) file coordinates to canonical metres, +Y up."""

@@ -173,9 +173,7 @@ def _load_inputs(
     from core.transfer.texture import textured_surface
 
     prepared.textured = textured_surface(raw, frame)  # a textured scan, as read
-    how_u = "detected" if scan.units == "auto" else "given"
-    how_up = "detected" if scan.up == "auto" else "given"
-    prepared.notes.insert(0, f"units {frame.units} ({how_u}), up axis {frame.up} ({how_up})")
+    prepared.notes.insert(0, frame.describe(scan.units, scan.up))
     canon = {k: frame.to_canonical(v[None, :])[0] for k, v in markers.items()}
     return prepared, canon
 

@@ -574,9 +574,7 @@ def load_scan(
         markers = read_markers(markers_path, valid_names=load_template().landmarks)
     frame = detect_frame(raw.surface()[0], units=units, up=up, markers=markers)
     scan = prepare_scan(raw, frame)
-    how_u = "detected" if units == "auto" else "given"
-    how_up = "detected" if up == "auto" else "given"
-    scan.notes.insert(0, f"units {frame.units} ({how_u}), up axis {frame.up} ({how_up})")
+    scan.notes.insert(0, frame.describe(units, up))
     mapped = None
     if markers is not None:
         mapped = {k: frame.to_canonical(np.asarray(v)[None, :])[0] for k, v in markers.items()}

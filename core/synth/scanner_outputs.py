@@ -71,6 +71,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial.transform import Rotation
 
 from core.geometry import MeshDistance
 from core.io.frame import rotation_for_up
@@ -115,6 +116,12 @@ KINDS = {
     "(from a 5-7 mm grid), mm, +Y up",
     "closed_booth_decimated": "closed_booth's subject (hair, touching arms, plate) meshed on a "
     "5-7 mm grid and decimated by quadric edge collapse to its 10-15 k vertices",
+    "raw_tilted": "raw multi-view range scan in a handheld scanner's frame: the body 5-45° off "
+    "every file axis",
+    "cloud_tilted": "point cloud without normals in a handheld scanner's frame: the body 5-45° "
+    "off every file axis",
+    "closed_tilted": "closed mesh (5-7 mm grid) in a handheld scanner's frame: the body 5-45° "
+    "off every file axis",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -123,13 +130,21 @@ WIDE_KINDS = {"raw_wide": "raw", "closed_wide": "closed", "cloud_wide": "cloud"}
 #: :data:`core.synth.realworld.PALM_TWIST_RANGE`) and the kind each is delivered as; only in
 #: :func:`palm_cases` (``bench.realworld --palms``).
 PALM_KINDS = {"raw_palms": "raw", "closed_palms": "closed_lowres"}
+#: The tilted kinds (a handheld scanner's or an unlevelled rig's frame: the body turned
+#: :data:`TILT_RANGE_DEG` about a random horizontal axis before the file's axes, units and
+#: facing are drawn) and the kind each is delivered as; only in :func:`tilted_cases`
+#: (``bench.realworld --tilted``).
+TILTED_KINDS = {"raw_tilted": "raw", "cloud_tilted": "cloud", "closed_tilted": "closed"}
+#: Tilts (degrees) of :data:`TILTED_KINDS`.
+TILT_RANGE_DEG = (5.0, 45.0)
 
 #: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
 #: fixed, so that a kind added later leaves every earlier case as it was.
 _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
-    "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated",
+    "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
+    "cloud_tilted", "closed_tilted",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -838,7 +853,7 @@ def make_case(
         forearm_twist=twist,
     )  # fmt: skip
     kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
-    kind = WIDE_KINDS.get(kind, PALM_KINDS.get(kind, kind))
+    kind = WIDE_KINDS.get(kind, PALM_KINDS.get(kind, TILTED_KINDS.get(kind, kind)))
     rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
     normals = None
@@ -903,6 +918,16 @@ def make_case(
         facing = float(rng.uniform(0.0, 360.0))
         shift = rng.uniform(-0.3, 0.3, 3)
     A = file_transform(units, up, facing, shift)
+    if kind_drawn in TILTED_KINDS:  # turned about a horizontal axis through the feet first
+        trng = np.random.default_rng([seed, 108])
+        tilt = float(trng.uniform(*TILT_RANGE_DEG))
+        az = float(trng.uniform(0.0, 2.0 * np.pi))
+        out["tilt_deg"] = tilt
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(
+            np.radians(tilt) * np.array([np.cos(az), 0.0, np.sin(az)])
+        ).as_matrix()
+        A = A @ T
     conv = str(rng.choice(["caesar62-teamB", "subset33-teamC"]))
     mk, minfo = other_convention_markers(P, rng, convention=conv)
     Xf = _tf(A, X)
@@ -936,6 +961,8 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
             f"forearms turned {pose['forearm_twist_L']:+.0f}°/{pose['forearm_twist_R']:+.0f}°"
         )
     bits.append(f"feet {pose['feet_gap_m'] * 100:.0f} cm apart")
+    if "tilt_deg" in out:
+        bits.append(f"tilted {out['tilt_deg']:.0f}°")
     bits.append(f"{n:,} {'vertices' if F is not None else 'points'}, {units}, up {up}")
     return ", ".join(bits)
 
@@ -945,7 +972,7 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
     apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated")
-    base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS)]
+    base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS)]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:
@@ -1003,6 +1030,14 @@ def palm_cases(n: int = 20, start: int = 600) -> list[tuple[int, str]]:
     return out[:n]
 
 
+def tilted_cases(n: int = 24, start: int = 800) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of bodies in a handheld scanner's frame (:data:`TILTED_KINDS`:
+    5-45° off every file axis), seeds ``start`` on (clear of the other sets), raw scans, point
+    clouds and closed meshes in turn."""
+    kinds = list(TILTED_KINDS)
+    return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
+
+
 def decimated_cases(n: int = 16, start: int = 700) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
     ``closed_decimated`` mesh (quadric edge collapse of a fine closed mesh to 10-20 k vertices)
@@ -1020,6 +1055,7 @@ __all__ = [
     "KINDS",
     "PALM_KINDS",
     "SUBSET_33",
+    "TILTED_KINDS",
     "WIDE_KINDS",
     "RealWorldCase",
     "benchmark_cases",
@@ -1037,6 +1073,7 @@ __all__ = [
     "other_convention_markers",
     "palm_cases",
     "raw_scan",
+    "tilted_cases",
     "wide_cases",
     "wind_arms_inward",
     "winding_occupancy",

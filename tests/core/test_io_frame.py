@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from core.errors import UnitsError
-from core.io.frame import UPS, apply_frame, detect_frame, rotation_for_up
+from core.io.frame import UPS, _level, apply_frame, detect_frame, rotation_for_up
 from core.scan import RawMesh
 from core.template import load_template
 
@@ -174,3 +174,50 @@ def test_mirror_gap_finds_the_left_right_plane_of_a_turned_t_pose():
         assert detect_frame(V).up == "+x"
     assert gaps[40.0][0] < 1.5 * gaps[0.0][0]  # left-right: as symmetric turned as not
     assert gaps[40.0][1] > 3.0 * gaps[40.0][0]  # head to foot: not symmetric
+
+
+@pytest.mark.parametrize(("tilt", "up"), [(8.0, "+z"), (20.0, "+y"), (35.0, "-x")])
+def test_a_tilted_body_is_levelled_and_the_file_map_kept(tilt, up):
+    """A handheld scanner's frame: the body stands ``tilt`` degrees off the file's nearest
+    axis. The frame turns it upright (its rest pose's long axis within 2° of +Y) and says by
+    how much; ``to_file`` still inverts ``to_canonical``; turned over, it stays levelled."""
+    from scipy.spatial.transform import Rotation
+
+    from core.io import prepare_scan, turn_over
+
+    axis = np.array([0.6, 0.0, 0.8])
+    T = Rotation.from_rotvec(np.radians(tilt) * axis).as_matrix()
+    V_file = to_file(TPL.V @ T.T, up, 0.001)
+    fr = detect_frame(V_file, up="auto" if up[0] == "+" else up)
+    assert (fr.units, fr.up) == ("mm", up)
+    assert abs(fr.tilt_deg - tilt) < 2.0, fr.tilt_deg
+    np.testing.assert_allclose(fr.R @ fr.R.T, np.eye(3), atol=1e-12)
+    X = fr.to_canonical(V_file)
+    _, off = _level(X, np.eye(3))  # what is left of the tilt
+    assert off < 2.0, off
+    np.testing.assert_allclose(fr.to_file(X), V_file, atol=1e-9)
+    assert "levelled" in fr.describe("auto", up) and f"{fr.tilt_deg:.1f}°" in fr.describe(
+        "auto", up
+    )
+    # read head-down and turned over: the body stays upright, the file map kept
+    wrong = ("-" if up[0] == "+" else "+") + up[1]
+    scan = prepare_scan(RawMesh(V=V_file, F=TPL.F), detect_frame(V_file, units="mm", up=wrong))
+    turn_over(scan)
+    assert scan.frame.up == up and scan.frame.tilt_deg > 0
+    np.testing.assert_allclose(scan.V, scan.frame.to_canonical(V_file), atol=1e-9)
+    assert _level(scan.V, np.eye(3))[1] < 2.0
+    assert scan.V[TPL.landmarks["Vertex"], 1] > scan.V[:, 1].min() + 1.5
+
+
+def test_upright_bodies_and_marker_sets_are_not_levelled():
+    """Upright bodies (the template, random bodies, their arms spread) keep the pure axis map,
+    whatever their posture tilts their principal axis by; a marker set is never levelled."""
+    from core.synth import random_body
+
+    rng = np.random.default_rng(0)
+    for V in [TPL.V] + [random_body(rng).V for _ in range(6)]:
+        fr = detect_frame(to_file(V, "+z", 0.001))
+        assert fr.tilt_deg == 0.0
+        np.testing.assert_allclose(fr.R, rotation_for_up("+z"))
+    marks = to_file(TPL.V[list(TPL.landmarks.values())], "+z", 0.001)
+    assert detect_frame(marks).tilt_deg == 0.0

@@ -23,6 +23,8 @@ from core.synth.scanner_outputs import (
     KINDS,
     PALM_KINDS,
     SUBSET_33,
+    TILT_RANGE_DEG,
+    TILTED_KINDS,
     UNITS,
     WIDE_KINDS,
     benchmark_cases,
@@ -32,6 +34,7 @@ from core.synth.scanner_outputs import (
     heavy_cases,
     make_case,
     palm_cases,
+    tilted_cases,
     wide_cases,
 )
 from core.synth.targets import load_targets
@@ -307,6 +310,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
+        *TILTED_KINDS,
     }  # fmt: skip
 
 
@@ -414,6 +418,33 @@ def test_wide_arms_cases_are_t_pose_captures_in_any_frame():
     plain = make_case(503, "raw")
     assert plain.params["body"] == raw.params["body"]
     assert plain.params["posture"]["arm_abduction"] <= 60.0 + 5
+
+
+def test_tilted_cases_stand_5_to_45_degrees_off_every_file_axis():
+    """The tilted kinds (a handheld scanner's frame): the truth's long axis, foot to head, lies
+    the drawn tilt off the file's nearest axis; a set of its own, the other kinds' cases as they
+    were (the same seed's raw scan: the same body and posture, axis-aligned)."""
+    cases = tilted_cases(24)
+    assert {k for _, k in cases} == set(TILTED_KINDS) and len(set(cases)) == 24
+    others = benchmark_cases(40) + heavy_cases(20) + booth_cases(40) + wide_cases(24)
+    assert not {s for s, _ in cases} & {s for s, _ in others}
+    tpl = load_template()
+    head, heel = tpl.landmarks["Vertex"], tpl.landmarks["Calcaneus_posterior_L"]
+    for seed, kind in cases[:3]:
+        c = make_case(seed, kind)
+        tilt = c.params["output"]["tilt_deg"]
+        assert TILT_RANGE_DEG[0] <= tilt <= TILT_RANGE_DEG[1] and f"tilted {tilt:.0f}°" in (
+            c.description
+        )
+        d = c.truth[head] - c.truth[heel]
+        off = np.degrees(np.arccos(np.abs(d).max() / np.linalg.norm(d)))
+        plain = make_case(seed, TILTED_KINDS[kind] if kind != "closed_tilted" else "raw")
+        e = plain.truth[head] - plain.truth[heel]
+        off0 = np.degrees(np.arccos(np.abs(e).max() / np.linalg.norm(e)))
+        assert abs(off - tilt) < off0 + 1.0, (off, tilt, off0)  # off0: the posture's own
+        assert plain.params["body"] == c.params["body"]
+        assert plain.params["posture"] == c.params["posture"]
+        assert (c.F is None) == (kind == "cloud_tilted")
 
 
 def test_turned_palms_turn_only_the_forearms_and_hands():
