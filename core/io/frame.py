@@ -11,9 +11,10 @@ Auto-detection rules
 - **Up**: with head and foot markers, the signed file axis closest to the foot -> head
   direction. Otherwise the axis of largest extent, if it is at least 1.15x the other two (with
   two extents closer than that, as a body with its arms spread wide has, the one of the two
-  that is not the body's left-right mirror axis, when the points tell); its sign is taken as
-  **positive** (a file's up axis is assumed to point up, as every scanner
-  we know writes it). Pass ``up="-y"`` etc. for upside-down files; a markerless fit that finds
+  that is not the body's left-right mirror axis, when the points tell; failing both, the axis
+  nearest the body's long axis, as for a body turned 30-55° off every file axis); its sign is
+  taken as **positive** (a file's up axis is assumed to point up, as every scanner we know
+  writes it). Pass ``up="-y"`` etc. for upside-down files; a markerless fit that finds
   the body head-down turns the scan over (:func:`turn_over`).
 - **Level**: a body whose long axis (the principal axis of its points nearest the up axis)
   stands more than :data:`LEVEL_MIN_DEG` off the up axis (a handheld scanner's or an
@@ -51,11 +52,11 @@ DOMINANCE = 1.15
 #: buttocks tilt the principal axis), so they are left as they are; the markerless fit tolerates
 #: about 5° (raw-4: 5.0 mm correspondence at 5°, 9.5 at 6.5°, 29 at 8°, failed).
 LEVEL_MIN_DEG = 4.5
-#: Tilts beyond this (degrees) are not levelled: the up axis itself is then in doubt.
-LEVEL_MAX_DEG = 50.0
+#: Tilts beyond this (degrees) are not levelled (the nearest file axis is at most 54.7° off).
+LEVEL_MAX_DEG = 55.0
 #: Fewer points than this (a marker set's) tell no tilt.
 LEVEL_MIN_POINTS = 1000
-#: Cells of the grid along the body's height over which the principal axes are taken.
+#: Cells of the grid along the body's largest extent over which the principal axes are taken.
 LEVEL_GRID = 100
 #: The long axis's variance must be at least this many times the next axis's.
 LEVEL_SEPARATION = 1.5
@@ -205,6 +206,28 @@ def _up_from_extent(ext: np.ndarray, V: np.ndarray | None = None) -> str:
     )
 
 
+def _principal_axes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(variances (3,) ascending, axes (3, 3) as columns) of the points P (n, 3) taken one per
+    occupied cell of a grid 1/:data:`LEVEL_GRID` of their largest extent: the body's shape, not
+    where the scanner sampled it densely (overlaps, a handheld scanner's lingering)."""
+    ext = _robust_extent(P).max()
+    cell = ext / LEVEL_GRID if ext > 0 else 1.0
+    G = np.unique(np.floor(P / cell), axis=0) * cell
+    return np.linalg.eigh(np.cov(G.T))
+
+
+def _up_from_principal_axis(V: np.ndarray) -> str | None:
+    """The file axis nearest the body's long axis, + sign, when no extent is clearly the largest
+    (a body turned 30-55° off every file axis) but the long axis is clearly the longest
+    (:data:`LEVEL_SEPARATION`); None otherwise."""
+    if len(V) < LEVEL_MIN_POINTS:
+        return None
+    w, E = _principal_axes(V)
+    if w[2] < LEVEL_SEPARATION * w[1]:
+        return None
+    return "+" + "xyz"[int(np.argmax(np.abs(E[:, 2])))]
+
+
 def _level(V: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, float]:
     """(L (3, 3), tilt in degrees): the rotation of the canonical frame that turns the body's
     long axis to +Y, for points V (n, 3, file frame) mapped by the axis permutation A (3, 3),
@@ -216,13 +239,7 @@ def _level(V: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, float]:
     eye = np.eye(3)
     if len(V) < LEVEL_MIN_POINTS:
         return eye, 0.0
-    P = V @ A.T
-    # one point per occupied cell of a grid 1/100 of the body's height: the principal axes of
-    # the body's shape, not of where the scanner sampled it densely (overlaps, lingering)
-    lo, hi = np.quantile(P[:, 1], [0.001, 0.999])
-    cell = (hi - lo) / LEVEL_GRID if hi > lo else 1.0
-    P = np.unique(np.floor(P / cell), axis=0) * cell
-    w, E = np.linalg.eigh(np.cov(P.T))  # ascending variances
+    w, E = _principal_axes(V @ A.T)
     i = int(np.argmax(np.abs(E[1])))
     axis = E[:, i] * np.sign(E[1, i])
     tilt = float(np.degrees(np.arccos(np.clip(axis[1], -1.0, 1.0))))
@@ -293,7 +310,12 @@ def detect_frame(
     if up == "auto":
         up_found = _up_from_markers(markers) if markers else None
         if up_found is None:
-            up_found = _up_from_extent(ext, V)
+            try:
+                up_found = _up_from_extent(ext, V)
+            except UnitsError:  # a body turned far off every file axis: its long axis tells
+                up_found = _up_from_principal_axis(V)
+                if up_found is None:
+                    raise
     else:
         up_found = up
     A = rotation_for_up(up_found)
