@@ -212,7 +212,11 @@ def _principal_axes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     where the scanner sampled it densely (overlaps, a handheld scanner's lingering)."""
     ext = _robust_extent(P).max()
     cell = ext / LEVEL_GRID if ext > 0 else 1.0
-    G = np.unique(np.floor(P / cell), axis=0) * cell
+    lo = np.quantile(P, 0.001, axis=0) - ext  # far strays held at the box's edge: no overflow
+    ijk = np.floor((np.clip(P, lo, lo + 3 * ext) - lo) / cell).astype(np.int64)
+    span = ijk.max(axis=0) + 1
+    key = np.unique((ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2])  # one per cell
+    G = np.stack([key // (span[1] * span[2]), key // span[2] % span[1], key % span[2]], 1) * cell
     return np.linalg.eigh(np.cov(G.T))
 
 
