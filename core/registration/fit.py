@@ -682,7 +682,8 @@ def initial_body(
     def prior_from(sim: Similarity, options: PriorOptions) -> PriorFit:
         dm = fit_data_mask(ops, options.fists, toes_take_data(index))
         if options.fists and index.closing_radius_m >= MIN_CLOSING_RADIUS_M:
-            dm = dm & ~fist_bridges(options.fists, index.closing_radius_m)  # a fused fist's
+            # a closed mesh's fused fist: the bridge over its palm is not the fist's skin
+            dm = dm & ~fist_bridges(options.fists, index.closing_radius_m)
         return fit_body_prior(
             index, tpl.V, np.asarray(tpl.F, dtype=np.int64), marker_vid, marker_pos, sim,
             data_mask=dm,
