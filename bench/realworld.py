@@ -317,9 +317,12 @@ def twins(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     by = {(r["seed"], r["kind"]): r for r in rows}
     out = []
     for (seed, kind), r in sorted(by.items()):
-        twin = {"closed_lowres": "raw", "closed_palms": "raw_palms", "closed_decimated": "raw"}.get(
-            kind
-        )
+        twin = {
+            "closed_lowres": "raw",
+            "closed_palms": "raw_palms",
+            "closed_decimated": "raw",
+            "closed_filled": "raw",
+        }.get(kind)
         if twin is None or (seed, twin) not in by:
             continue
         s = by[(seed, twin)]
@@ -672,6 +675,13 @@ def main(argv: list[str] | None = None) -> int:
         "--booth: the booth subjects so decimated",
     )
     ap.add_argument(
+        "--filled",
+        action="store_true",
+        help="--cases bodies as closed meshes hole-filled from their own raw scan (booth "
+        "software's watertight meshes: armpits, crotch, crown and soles bridged; 10-15 k "
+        "vertices) and raw twins, instead of the varied set",
+    )
+    ap.add_argument(
         "--hair",
         default=None,
         help="put this hair style on every case's head instead of its own (one of "
@@ -696,17 +706,18 @@ def main(argv: list[str] | None = None) -> int:
         benchmark_cases,
         booth_cases,
         decimated_cases,
+        filled_cases,
         heavy_cases,
         palm_cases,
         tilted_cases,
         wide_cases,
     )
 
-    if args.heavy + args.booth + args.wide + args.palms + args.decimated + args.tilted > 1 + (
-        args.booth and args.decimated
-    ):
+    sets = args.heavy + args.booth + args.wide + args.palms + args.decimated + args.tilted
+    if sets + args.filled > 1 + (args.booth and args.decimated):
         ap.error(
-            "--heavy, --booth, --wide, --palms, --tilted and --decimated are different sets: "
+            "--heavy, --booth, --wide, --palms, --tilted, --filled and --decimated are different "
+            "sets: "
             "choose one "
             "(or --booth --decimated: the booth subjects decimated)"
         )
@@ -714,6 +725,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = [(s, "closed_booth_decimated") for s, _ in booth_cases(args.cases)]
     elif args.decimated:
         cases = decimated_cases(args.cases)
+    elif args.filled:
+        cases = filled_cases(args.cases)
     elif args.palms:
         cases = palm_cases(args.cases)
     elif args.tilted:
@@ -750,7 +763,7 @@ def main(argv: list[str] | None = None) -> int:
         f"realworld-{dt.date.today():%Y-%m-%d}{'-heavy' if args.heavy else ''}"
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
-        f"{'-tilted' if args.tilted else ''}"
+        f"{'-tilted' if args.tilted else ''}{'-filled' if args.filled else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )

@@ -122,6 +122,8 @@ KINDS = {
     "off every file axis",
     "closed_tilted": "closed mesh (5-7 mm grid) in a handheld scanner's frame: the body 5-45° "
     "off every file axis",
+    "closed_filled": "closed mesh hole-filled from a raw scan (what the scanner missed bridged by "
+    "a smooth membrane: armpits, crotch, crown, soles), decimated to 10-15 k vertices, mm, +Y up",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -144,7 +146,7 @@ _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
-    "cloud_tilted", "closed_tilted",
+    "cloud_tilted", "closed_tilted", "closed_filled",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -858,7 +860,16 @@ def make_case(
     out: dict = {}
     normals = None
     F: np.ndarray | None
-    if kind.startswith("closed"):
+    if kind == "closed_filled":  # booth software's watertight mesh of its own raw scan
+        from core.synth.hole_filling import filled_mesh
+
+        Xr, _, Nr = raw_scan(P, rng)
+        h = float(rng.uniform(0.006, 0.008))
+        want = int(rng.uniform(10_000, 15_000))
+        X, F = filled_mesh(Xr, Nr, h, want)
+        out.update(voxel_m=h, raw_points=len(Xr), fill="membrane")
+        normals = vertex_normals(X, F) if rng.random() < 0.5 else None
+    elif kind.startswith("closed"):
         lowres = kind in ("closed_lowres", "closed_booth")
         h = float(rng.uniform(0.010, 0.014) if lowres else rng.uniform(0.005, 0.007))
         n_decimated = int(rng.uniform(10_000, 20_000)) if kind == "closed_decimated" else 0
@@ -910,7 +921,8 @@ def make_case(
         elif kind == "cloud":
             F, normals = None, None
     # frame
-    if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated"):
+    if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
+                "closed_filled"):  # fmt: skip
         units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
     else:
         units = str(rng.choice(list(UNITS)))
@@ -971,7 +983,7 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated")
+    apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled")
     base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS)]
     out: list[tuple[int, str]] = []
     seed = i = 0
@@ -1038,6 +1050,16 @@ def tilted_cases(n: int = 24, start: int = 800) -> list[tuple[int, str]]:
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
 
+def filled_cases(n: int = 16, start: int = 900) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
+    ``closed_filled`` mesh (booth software's watertight mesh of its own raw scan, the holes
+    bridged, :mod:`core.synth.hole_filling`) and a ``raw`` twin."""
+    out: list[tuple[int, str]] = []
+    for seed in range(start, start + (n + 1) // 2):
+        out += [(seed, "closed_filled"), (seed, "raw")]
+    return out[:n]
+
+
 def decimated_cases(n: int = 16, start: int = 700) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
     ``closed_decimated`` mesh (quadric edge collapse of a fine closed mesh to 10-20 k vertices)
@@ -1065,6 +1087,7 @@ __all__ = [
     "decimate",
     "decimated_cases",
     "file_transform",
+    "filled_cases",
     "hair_box",
     "hair_mesh",
     "hair_volume",
