@@ -34,11 +34,18 @@ class Similarity:
 
 
 def umeyama(
-    src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None, *, scale: float | None = None
+    src: np.ndarray,
+    dst: np.ndarray,
+    w: np.ndarray | None = None,
+    *,
+    scale: float | None = None,
+    upright: np.ndarray | None = None,
 ) -> Similarity:
     """Least-squares similarity mapping src (k, 3) onto dst (k, 3), optional weights (k,).
 
     With ``scale`` given, the scale is held at that value (a rigid fit of the scaled source).
+    With ``upright`` (3, 3) a rotation R0, the rotation is held to ``R_y(θ) @ R0``: only turned
+    about the destination's +Y (a body kept standing as R0 stands it on a levelled scan).
     """
     w = np.ones(len(src)) if w is None else np.asarray(w, dtype=np.float64)
     w = w / w.sum()
@@ -46,6 +53,17 @@ def umeyama(
     mu_d = w @ dst
     S = src - mu_s
     D = dst - mu_d
+    if upright is not None:
+        S0 = S @ np.asarray(upright, dtype=np.float64).T
+        a = float(w @ (D[:, 0] * S0[:, 0] + D[:, 2] * S0[:, 2]))
+        b = float(w @ (D[:, 0] * S0[:, 2] - D[:, 2] * S0[:, 0]))
+        th = np.arctan2(b, a)
+        c_, s_ = np.cos(th), np.sin(th)
+        R = np.array([[c_, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c_]]) @ upright
+        RS = S @ R.T
+        var_s = float(w @ np.sum(S**2, axis=1))
+        s = float(w @ np.sum(D * RS, axis=1)) / max(var_s, 1e-30) if scale is None else scale
+        return Similarity(s=float(s), R=R, t=mu_d - float(s) * R @ mu_s)
     C = (D * w[:, None]).T @ S
     U, sig, Vt = np.linalg.svd(C)
     E = np.eye(3)
@@ -82,6 +100,12 @@ def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
         np.subtract(u[:, j] * v[:, k], u[:, k] * v[:, j], out=out[:, i])
     return out
+
+
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(n,) a third of the area of the triangles F (m, 3) around each vertex of V (n, 3)."""
+    areas = 0.5 * row_norms(face_normals(V, F))
+    return np.bincount(np.asarray(F).ravel(), np.repeat(areas / 3.0, 3), minlength=len(V))
 
 
 def row_norms(X: np.ndarray) -> np.ndarray:

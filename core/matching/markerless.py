@@ -233,6 +233,17 @@ def arm_hypotheses(scan: Scan) -> tuple[float, ...]:
 SCORE_SIGMA = 0.02
 #: The markerless search's pose prior: the arm bones', the head's and the thighs' twist.
 SEARCH_BONE_PRIOR = BONE_PRIOR + HEAD_PRIOR + LEG_TWIST_PRIOR
+#: The markerless body-prior fits keep the body standing on the levelled scan
+#: (``fit_body_prior(upright=True)``: the similarity turns only about +Y). Free, the whole body
+#: could roll and turn while the spine, hips and knees turned back against it: on heavy bodies'
+#: hole-filled booth meshes (``closed_filled`` of ``core.synth.scanner_outputs``, 901: BMI 51)
+#: the search's wide-girth start stood rolled 6° and turned 9°, the first fit 10° and 15°, the
+#: spine twisted 16°, the knees 23° sideways, the pelvis and thighs 7-18° off the truth's (their
+#: raw twins' 1-3°). Upright in the search and the fits (stop 51, ``bench/README.md``): filled 16
+#: twins 5.15 -> 4.70 mm, correspondence 8.67 -> 8.58; booth 40 9.53 -> 9.46; varied 40 6.58 ->
+#: 6.61 (twins 2.81 -> 2.89); held-in 3.27 (unchanged). Upright only in the fits left 901's thighs
+#: 15° off. Its cost: raw-4's search now ends in a near tie, and a second first fit (+25-30 % CPU).
+UPRIGHT = True
 #: The shape-space fits' bone prior: the search's and the feet's (:data:`FOOT_PRIOR`; in the
 #: search's short fits it changed which start won on heavy bodies: ``bench.realworld --heavy``
 #: raw-63 and raw-102 lost both arms). A twist prior on the upper arms and shins as well (0.1,
@@ -394,13 +405,14 @@ class Start:
     label: str
 
 
-def scan_sample(scan: Scan, n: int = 3000) -> np.ndarray:
-    """Indices (≤ n) of scan points for the search's scan→body terms: an even stride over the
-    points, leaving out isolated ones (low confidence: stray blobs)."""
-    ok = np.flatnonzero(np.asarray(scan.confidence) > 0.25)
+def scan_sample(index: ScanIndex, n: int = 3000) -> np.ndarray:
+    """Indices (≤ n) of the scan's points for the search's scan→body terms
+    (:meth:`~core.registration.correspondence.ScanIndex.spread_sample`: by area on a decimated
+    mesh), leaving out isolated ones (low confidence: stray blobs)."""
+    ok = np.flatnonzero(np.asarray(index.scan.confidence) > 0.25)
     if len(ok) < 100:
-        ok = np.arange(len(scan.V))
-    return ok[np.linspace(0, len(ok) - 1, min(n, len(ok))).astype(np.int64)]
+        ok = np.arange(len(index.points))
+    return index.spread_sample(n, ok)
 
 
 def two_way_score(
@@ -457,7 +469,7 @@ def search_starts(
     F = np.asarray(tpl.F, dtype=np.int64)
     empty_i, empty_p = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     body_ids = np.flatnonzero(ops.full.data_mask)[::6]
-    scan_ids = scan_sample(scan)
+    scan_ids = scan_sample(index)
 
     # the average template, and where the scan's trunk is deeper, one as wide and deep as it
     # (a heavy body's scan matched no start of the average template): each rigid candidate
@@ -479,7 +491,7 @@ def search_starts(
             freeze_pose=1 if articulated else iterations + 1, bidirectional=True, subsample=6,
             scan_sample=3000, initial_pose=pose, max_angle_deg=180.0,
             point_weight=SEARCH_POINT_WEIGHT, limb_prior=LIMB_PRIOR,
-            bone_prior=SEARCH_BONE_PRIOR,
+            bone_prior=SEARCH_BONE_PRIOR, upright=UPRIGHT,
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []
@@ -817,6 +829,7 @@ def fit_markerless(
             "bone_prior": MARKERLESS_BONE_PRIOR,
             "floor_y": scan_floor(view),
             "hand_length": True,
+            "upright": UPRIGHT,
         }
         prior_options.update(user_prior)
         return fit(
@@ -842,7 +855,7 @@ def fit_markerless(
 
     def whole_score(X: np.ndarray) -> float:
         """:func:`two_way_score` of a body X (13380, 3) against the scan."""
-        return two_way_score(index, X, body_ids, scan_sample(scan, 12000))
+        return two_way_score(index, X, body_ids, scan_sample(index, 12000))
 
     start, res = tied[0], first_fit(tied[0], scan, index)
     tie_note = ""
@@ -850,7 +863,7 @@ def fit_markerless(
         # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot; or the
         # body upright vs head-down): the shape-space fit from each tells them apart where the
         # search's short fits cannot. The scan sample is the same points in either view.
-        scan_ids = scan_sample(scan, 12000)
+        scan_ids = scan_sample(index, 12000)
         fits = [
             (two_way_score(vi, r.vertices, body_ids, scan_ids), st, r, k)
             for k, (vs, vi, sts) in enumerate(views)
@@ -995,7 +1008,7 @@ def fit_markerless(
         prev = res.body_prior
         assert prev is not None
         score = partial(
-            two_way_score, round_index, body_ids=body_ids, scan_ids=scan_sample(hair.scan, 12000)
+            two_way_score, round_index, body_ids=body_ids, scan_ids=scan_sample(round_index, 12000)
         )
         restart = PriorRestart(prev, score, margin=TIE_MARGIN, iterations=RESTART_ITERATIONS)
         # the bone length prior (:data:`BONE_LENGTH_PRIOR`) in the round: an arm fused to the
@@ -1018,6 +1031,7 @@ def fit_markerless(
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
                 "point_weight": ROUND_POINT_WEIGHT, "sole_data": ROUND_SOLE_DATA,
+                "upright": UPRIGHT,
                 **denser_template_rows(ROUND_SUBSAMPLE),
             },
             **options,

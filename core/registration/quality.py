@@ -176,7 +176,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from core.geometry import MeshDistance, umeyama
+from core.geometry import MeshDistance, umeyama, vertex_areas
 from core.registration.correspondence import ScanIndex
 from core.registration.operators import vertex_normals
 from core.scan import Scan
@@ -564,11 +564,6 @@ def hand_body_gaps(X: np.ndarray, template: Template | None = None) -> dict[str,
         side: float(np.percentile(md.distances(X[tpl.part_mask(f"hand_{side}") & ~fingers]), 5))
         for side in "LR"
     }
-
-
-def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(n,) a third of the area of the triangles F (m, 3) around each vertex of V (n, 3)."""
-    return np.bincount(F.ravel(), np.repeat(_triangle_areas(V, F) / 3.0, 3), minlength=len(V))
 
 
 def head_figures(X: np.ndarray, template: Template | None = None) -> tuple[float, float]:

@@ -345,6 +345,7 @@ class PriorOptions:
     hand_length: bool = False
     foot_length: bool = False
     sole_data: bool = True
+    upright: bool = False
 
     @classmethod
     def of(cls, value: PriorOptions | dict | None) -> PriorOptions:
@@ -425,8 +426,8 @@ def _scan_to_template(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pairs (template vertex, scan point, weight, scan normal) from a fixed scan sample: each
     scan point with its closest compatible vertex of ``cand``. ``n_sample``: the direction's
-    weight in unit rows; ``oversample`` times as many points are paired (every k-th in file
-    order), each weighing its share (at most 1).
+    weight in unit rows; ``oversample`` times as many points are paired (spread over the scan's
+    surface by area, :meth:`ScanIndex.spread_sample`), each weighing its share (at most 1).
 
     ``explained``: vertices that take no data (the template's regions that scan badly: fingers,
     toes, ears) but explain the scan points closest to them: such a point makes no pair, where
@@ -434,8 +435,7 @@ def _scan_to_template(
     palm, and with it the hand, 5-31 mm down the forearm's axis).
     """
     pts = index.points
-    step = max(1, len(pts) // (oversample * n_sample))
-    sel = np.arange(0, len(pts), step)
+    sel = index.spread_sample(oversample * n_sample)
     share = min(1.0, n_sample / len(sel))
     n_data = len(cand)
     allc = cand if explained is None else np.r_[cand, explained]
@@ -779,6 +779,7 @@ def fit_body_prior(
     hand_length: bool = False,
     foot_length: bool = False,
     sole_data: bool = True,
+    upright: bool = False,
     measure: bool = True,
 ) -> PriorFit:
     """Fit shape coefficients, bone rotations and a similarity to markers and scan.
@@ -811,9 +812,9 @@ def fit_body_prior(
         few first, more later); the last entry holds for the remaining iterations.
     bidirectional : also pair ``scan_sample`` scan points with their closest compatible body
         vertex (without markers, one-way pairs let the body shrink or slide off the scan).
-    scan_oversample : pair this many times ``scan_sample`` scan points (every k-th), each
+    scan_oversample : pair this many times ``scan_sample`` scan points (spread by area), each
         weighing its share: the direction keeps the weight of ``scan_sample`` rows, and which
-        points a fixed stride picks averages out (e.g. :data:`core.matching.markerless.
+        points the spread picks averages out (e.g. :data:`core.matching.markerless.
         FIRST_FIT_SCAN_OVERSAMPLE`).
     freeze_pose : iterations before the bone rotations may move (coarse alignment first).
     initial_pose : bone name (of :data:`POSE_BONES`) -> (3, 3) local rotation to start from
@@ -869,6 +870,10 @@ def fit_body_prior(
         scanned foot's end (:func:`core.registration.foot_end.correct_foot_lengths`; on coarse
         scans the toes take no data).
     sole_data : False: the soles' downward faces (:func:`sole_undersides`) take no data.
+    upright : keep the body standing as ``sim`` stands it (upright, or head-down where its
+        rotation turns the template's up below the horizon): the similarity only turns about the
+        scan's +Y; lean and sway are the spine's, hips' and feet's (the markerless fits,
+        :data:`core.matching.markerless.UPRIGHT`).
     measure : with a scan, measure the result's ``data_cost_m`` and ``coverage`` (one more
         correspondence query; the markerless search scores its starts by them), else NaN.
     """
@@ -911,6 +916,8 @@ def fit_body_prior(
     Xp, aux = art.pose(shaped(c), local)
     Xp_before = Xp
     bone_M = _bone_metrics(art, V0, bone_prior)
+    # upright: the template's up held along the scan's (or against it, head-down)
+    stand = None if not upright else (np.eye(3) if sim.R[1, 1] >= 0 else np.diag([-1.0, -1.0, 1.0]))
     bone_slots = [a for a, _ in bone_M]
     G_limb, g_limb = _limb_rows(V0, U, art.rig) if limb_prior > 0 else (np.zeros((0, k)), [])
     G_trunk, g_trunk = (
@@ -1055,7 +1062,8 @@ def fit_body_prior(
         src = np.vstack([Xp[marker_vid], Xp[rows]])
         dst = np.vstack([marker_pos, P])
         # without markers, closest-point pairs bias the scale down: hold it (shape modes carry size)
-        sim = umeyama(src, dst, np.r_[mw, w], scale=None if len(marker_vid) >= 3 else sim.s)
+        sim = umeyama(src, dst, np.r_[mw, w], scale=None if len(marker_vid) >= 3 else sim.s,
+                      upright=stand)  # fmt: skip
     rest = shaped(c)
     X = sim.apply(Xp)
     # the last iteration's mean vertex step (scan frame; NaN without iterations)

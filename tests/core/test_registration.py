@@ -194,6 +194,73 @@ def test_umeyama_recovers_similarity():
     assert np.allclose(est.t, truth.t, atol=1e-9)
 
 
+def test_upright_umeyama_turns_only_about_up_and_keeps_head_down_bodies_so():
+    """``umeyama(upright=R0)``: the rotation is R_y(θ) @ R0. Data that are a turn about +Y
+    are recovered exactly (scale and translation too); data also tilted 8° come out turned
+    but not tilted (the template's up stays the scan's up), and the least-squares yaw beats
+    any other; with R0 a head-down flip the body stays head-down."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(200, 3)) * np.array([0.2, 0.9, 0.1])
+    Ry = Rotation.from_euler("y", 37.0, degrees=True).as_matrix()
+    truth = Similarity(1.3, Ry, np.array([0.5, 0.2, -1.0]))
+    est = umeyama(X, truth.apply(X), upright=np.eye(3))
+    assert abs(est.s - 1.3) < 1e-9 and np.allclose(est.R, Ry, atol=1e-9)
+    assert np.allclose(est.t, truth.t, atol=1e-9)
+    tilt = Rotation.from_euler("x", 8.0, degrees=True).as_matrix()
+    Y = Similarity(1.0, tilt @ Ry, np.zeros(3)).apply(X)
+    up = umeyama(X, Y, scale=1.0, upright=np.eye(3))
+    assert np.allclose(up.R[:, 1], [0.0, 1.0, 0.0], atol=1e-12)
+    free = umeyama(X, Y, scale=1.0)
+    assert np.degrees(np.arccos(np.clip(free.R[1, 1], -1, 1))) > 7.9  # the free fit tilts
+
+    def cost(R: np.ndarray) -> float:
+        t = Y.mean(0) - R @ X.mean(0)
+        return float(np.sum((X @ R.T + t - Y) ** 2))
+
+    for d in (-2.0, 2.0):  # the least-squares turn
+        off = Rotation.from_euler("y", d, degrees=True).as_matrix() @ up.R
+        assert cost(up.R) < cost(off)
+    flip = np.diag([-1.0, -1.0, 1.0])
+    down = umeyama(X, truth.apply(X @ flip.T), upright=flip)
+    assert down.R[1, 1] == -1.0 or np.isclose(down.R[1, 1], -1.0)
+    assert np.allclose(down.R, Ry @ flip, atol=1e-9)
+
+
+def _grid(n: int, x0: float) -> tuple[np.ndarray, np.ndarray]:
+    """A unit square [x0, x0 + 1] × [0, 1] in the plane z = 0 as an n × n vertex grid."""
+    u = np.linspace(0.0, 1.0, n)
+    xx, yy = np.meshgrid(u + x0, u, indexing="ij")
+    V = np.c_[xx.ravel(), yy.ravel(), np.zeros(n * n)]
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    i = i.ravel()
+    F = np.r_[np.c_[i, i + n, i + 1], np.c_[i + 1, i + n, i + n + 1]]
+    return V, F
+
+
+def test_scan_samples_spread_by_area_not_by_vertex_count():
+    """``area_spread_sample``: on a surface with 1 681 vertices on one half and 256 on the other
+    (a decimated mesh: dense where it bends), the sample falls half on each (an even stride over
+    the vertices: 87 % on the dense half); leftover vertices no triangle uses are never picked;
+    a point cloud gets the even stride."""
+    from core.registration.correspondence import area_spread_sample
+
+    Va, Fa = _grid(41, 0.0)
+    Vb, Fb = _grid(16, 1.0)
+    V = np.vstack([Va, Vb, [[5.0, 5.0, 5.0]] * 10])  # 10 leftovers
+    F = np.vstack([Fa, Fb + len(Va)])
+    ids = area_spread_sample(V, F, 1000)
+    assert len(ids) == 1000 and np.all(np.diff(ids) >= 0)
+    dense = np.mean(ids < len(Va))
+    assert 0.45 < dense < 0.55, dense
+    assert ids.max() < len(Va) + len(Vb)
+    stride = area_spread_sample(V, None, 1000)
+    assert len(np.unique(stride)) == len(stride) and np.mean(stride < len(Va)) > 0.85
+    few = area_spread_sample(V, F, 100, ids=np.arange(len(Va), len(Va) + len(Vb)))
+    assert set(few.tolist()) <= set(range(len(Va), len(Va) + len(Vb)))
+
+
 def test_align_markers_drops_gross_outlier():
     tpl = load_template()
     tl = {k: tpl.V[i] for k, i in tpl.landmarks.items()}
