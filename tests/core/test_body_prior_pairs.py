@@ -137,10 +137,11 @@ def test_the_trunk_rows_are_the_spine_joints_offsets_along_the_trunk() -> None:
 
 
 def _four_nearest_pairs(index, X, N, cand, max_distance, n_sample, min_cos):
-    """The rule of ``_scan_to_template`` written plainly: each sampled scan point (every k-th)
-    with the first of its 4 nearest vertices of ``cand`` whose normal is compatible."""
+    """The rule of ``_scan_to_template`` written plainly: each sampled scan point (``n_sample``
+    at an even stride: the scan is not a decimated mesh) with the first of its 4 nearest vertices
+    of ``cand`` whose normal is compatible."""
     pts = index.points
-    sel = np.arange(0, len(pts), max(1, len(pts) // n_sample))
+    sel = np.linspace(0, len(pts) - 1, min(n_sample, len(pts))).astype(np.int64)
     d, j = cKDTree(X[cand]).query(pts[sel], k=4, distance_upper_bound=max_distance)
     out = []
     for s, (ds, js) in enumerate(zip(d, j, strict=True)):
@@ -172,7 +173,7 @@ def test_scan_to_template_pairs_are_the_first_compatible_of_the_four_nearest() -
 
 def test_a_denser_scan_sample_weighs_as_the_rows_asked_for() -> None:
     """The direction's weight is ``n_sample`` unit rows however many points are paired: more
-    points, each lighter (a fixed stride's choice of points averages out)."""
+    points, each lighter (an even stride's choice of points averages out)."""
     tpl = load_template()
     V, F = tpl.V, np.asarray(tpl.F, np.int64)
     N = vertex_normals(V, F)
@@ -182,7 +183,7 @@ def test_a_denser_scan_sample_weighs_as_the_rows_asked_for() -> None:
     cand = np.arange(n)
     for n_sample in (1000, 3000):
         v, _, w, _ = _scan_to_template(index, V, N, cand, 0.05, n_sample, oversample=3)
-        paired = len(range(0, n, max(1, n // (3 * n_sample))))
+        paired = 3 * n_sample  # the even stride's points (not a decimated mesh)
         assert len(v) == paired > 2 * n_sample  # more points than unit rows ...
         np.testing.assert_allclose(w, n_sample / paired)  # ... that weigh as those rows
         assert abs(w.sum() - n_sample) < 1e-6 * n_sample
