@@ -310,7 +310,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
-        *TILTED_KINDS,
+        *TILTED_KINDS, "closed_filled",
     }  # fmt: skip
 
 
