@@ -96,8 +96,7 @@ def filled_mesh(
     """
     from skimage.measure import marching_cubes  # dev dependency (BSD-3)
 
-    from core.synth.realworld import mesh_volume
-    from core.synth.scanner_outputs import _largest_component, decimate
+    from core.synth.scanner_outputs import decimate, outward_largest_component
 
     X = np.asarray(X, dtype=np.float64)
     N = np.asarray(N, dtype=np.float64)
@@ -127,13 +126,7 @@ def filled_mesh(
     f = np.pad(f, 1, constant_values=BAND_VOXELS * h)
     V, F, _, _ = marching_cubes(f, level=0.0, spacing=(h, h, h))
     V = V + lo - h + 0.5 * h
-    F = _largest_component(F.astype(np.int64), len(V))
-    used = np.unique(F)
-    remap = -np.ones(len(V), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    V, F = V[used], remap[F]
-    if mesh_volume(V, F) < 0:
-        F = F[:, [0, 2, 1]]
+    V, F = outward_largest_component(V, F)
     if n_vertices is not None and len(V) > n_vertices:
         V, F = decimate(V, F, n_vertices)
     return V, F

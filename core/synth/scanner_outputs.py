@@ -366,6 +366,19 @@ def _largest_component(F: np.ndarray, n: int) -> np.ndarray:
     return F[lab[F[:, 0]] == big]
 
 
+def outward_largest_component(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The largest connected component of a marching-cubes mesh (V (n, 3), F (m, 3)), its
+    unused vertices dropped, wound outward (positive volume), as scanner software keeps it."""
+    F = _largest_component(np.asarray(F, dtype=np.int64), len(V))
+    used = np.unique(F)
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = V[used], remap[F]
+    if mesh_volume(V, F) < 0:
+        F = F[:, [0, 2, 1]]
+    return V, F
+
+
 def decimate(V: np.ndarray, F: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """Quadric edge-collapse decimation (fast-simplification, MIT; a dev dependency) of a closed
     mesh to about ``n_vertices`` vertices, as scanner software decimates its output.
@@ -539,13 +552,7 @@ def closed_mesh(
     f = np.pad(f, 1, constant_values=h)
     Vc, Fc, _, _ = marching_cubes(f, level=0.0, spacing=(h, h, h))
     Vc = Vc + origin - h
-    Fc = _largest_component(Fc.astype(np.int64), len(Vc))
-    used = np.unique(Fc)
-    remap = -np.ones(len(Vc), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    Vc, Fc = Vc[used], remap[Fc]
-    if mesh_volume(Vc, Fc) < 0:
-        Fc = Fc[:, [0, 2, 1]]
+    Vc, Fc = outward_largest_component(Vc, Fc)
     if floor == "plate":  # the plate's underside is the floor: the body stands on its top
         info["floor_shift_m"] = float(-Vc[:, 1].min())
         Vc[:, 1] += info["floor_shift_m"]
@@ -1094,6 +1101,7 @@ __all__ = [
     "heavy_cases",
     "make_case",
     "other_convention_markers",
+    "outward_largest_component",
     "palm_cases",
     "raw_scan",
     "tilted_cases",
