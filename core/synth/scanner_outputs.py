@@ -400,14 +400,7 @@ def decimate(V: np.ndarray, F: np.ndarray, n_vertices: int) -> tuple[np.ndarray,
     # a collapse now and then leaves a triangle twice (a fin over an edge shared by four faces):
     # every copy goes, which leaves its edges to the two faces around them
     _, inv, cnt = np.unique(np.sort(Fd, axis=1), axis=0, return_inverse=True, return_counts=True)
-    Fd = _largest_component(Fd[cnt[inv.ravel()] == 1], len(Vd))
-    used = np.unique(Fd)
-    remap = -np.ones(len(Vd), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    Vd, Fd = Vd[used], remap[Fd]
-    if mesh_volume(Vd, Fd) < 0:
-        Fd = Fd[:, [0, 2, 1]]
-    return Vd, Fd
+    return outward_largest_component(Vd, Fd[cnt[inv.ravel()] == 1])
 
 
 def mouth_pocket_mask(rings: int = 3) -> np.ndarray:
