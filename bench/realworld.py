@@ -486,6 +486,7 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
         "'good' verdicts with p95 > 6 mm: "
         f"{sum(r.get('quality') == 'good' and r['scan_to_fit_p95_mm'] > 6.0 for r in ok)}",
         f"fit time: median {_f(med_time)} s wall, {_f(med_cpu)} s CPU",
+        *size_time_lines(rows),
     ]
     rc = [r["removal_check"] for r in ok if "removal_check" in r]
     rm = [r.get("removed", {}) for r in ok]
@@ -514,6 +515,30 @@ def report(rows: list[dict[str, Any]], tw: list[dict[str, Any]], markers: bool) 
             + ", ".join(f"{p} {r['part_truth_offset_mm'][p]:.0f} mm ({pq.get(p, '-')})" for p in ps)
         )
     return lines
+
+
+#: Scan sizes (points) of the issue's time target: a 150 k-vertex scan in at most 8 s CPU.
+TIME_TARGET_POINTS = (120_000, 240_000)
+TIME_TARGET_CPU_S = 8.0
+
+
+def size_time_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The fit CPU time of the scans of :data:`TIME_TARGET_POINTS` points against
+    :data:`TIME_TARGET_CPU_S`: how many exceed it, and the slowest."""
+    lo, hi = TIME_TARGET_POINTS
+    sel = [r for r in rows if "fit_cpu_s" in r and lo <= r.get("scan_points", 0) <= hi]
+    if not sel:
+        return []
+    cpu = np.array([r["fit_cpu_s"] for r in sel])
+    slow = sorted(
+        (r for r in sel if r["fit_cpu_s"] > TIME_TARGET_CPU_S), key=lambda r: -r["fit_cpu_s"]
+    )
+    worst = ", ".join(f"{r['kind']}-{r['seed']} {r['fit_cpu_s']:.1f}" for r in slow[:4])
+    worst = f" ({worst})" if worst else ""
+    return [
+        f"  scans of {lo // 1000}-{hi // 1000} k points: CPU median {np.median(cpu):.1f} s, "
+        f"over {TIME_TARGET_CPU_S:.0f} s {len(slow)}/{len(sel)}{worst}"
+    ]
 
 
 def floor_lines(ok: list[dict[str, Any]]) -> list[str]:
@@ -679,7 +704,8 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="--cases bodies as closed meshes hole-filled from their own raw scan (booth "
         "software's watertight meshes: armpits, crotch, crown and soles bridged; 10-15 k "
-        "vertices) and raw twins, instead of the varied set",
+        "vertices) and raw twins, instead of the varied set; with --booth: the booth subjects "
+        "(hair, arms touching) so hole-filled",
     )
     ap.add_argument(
         "--hair",
@@ -714,15 +740,18 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     sets = args.heavy + args.booth + args.wide + args.palms + args.decimated + args.tilted
-    if sets + args.filled > 1 + (args.booth and args.decimated):
+    if sets + args.filled > 1 + (args.booth and (args.decimated or args.filled)):
         ap.error(
             "--heavy, --booth, --wide, --palms, --tilted, --filled and --decimated are different "
             "sets: "
             "choose one "
-            "(or --booth --decimated: the booth subjects decimated)"
+            "(or --booth --decimated / --booth --filled: the booth subjects decimated / "
+            "hole-filled from their raw scans)"
         )
     if args.booth and args.decimated:
         cases = [(s, "closed_booth_decimated") for s, _ in booth_cases(args.cases)]
+    elif args.booth and args.filled:
+        cases = [(s, "closed_booth_filled") for s, _ in booth_cases(args.cases)]
     elif args.decimated:
         cases = decimated_cases(args.cases)
     elif args.filled:

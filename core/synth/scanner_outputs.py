@@ -124,6 +124,8 @@ KINDS = {
     "off every file axis",
     "closed_filled": "closed mesh hole-filled from a raw scan (what the scanner missed bridged by "
     "a smooth membrane: armpits, crotch, crown, soles), decimated to 10-15 k vertices, mm, +Y up",
+    "closed_booth_filled": "closed mesh hole-filled from a booth subject's raw scan (its hair, "
+    "and arms touching the body, fused to it), decimated to 10-15 k vertices, mm, +Y up",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -146,7 +148,7 @@ _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
-    "cloud_tilted", "closed_tilted", "closed_filled",
+    "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -839,7 +841,7 @@ def make_case(
     tpl = load_template()
     F_t = np.asarray(tpl.F, dtype=np.int64)
     body = off_model_body(np.random.default_rng([seed, 101]))
-    booth = kind in ("closed_booth", "closed_booth_decimated")
+    booth = kind in ("closed_booth", "closed_booth_decimated", "closed_booth_filled")
     brng = np.random.default_rng([seed, 105])  # the booth subject's protocol
     touching = kind == "closed_touching" or (booth and brng.random() < 0.4)
     wide = kind in WIDE_KINDS
@@ -860,10 +862,17 @@ def make_case(
     out: dict = {}
     normals = None
     F: np.ndarray | None
-    if kind == "closed_filled":  # booth software's watertight mesh of its own raw scan
-        from core.synth.hole_filling import filled_mesh
+    if kind in ("closed_filled", "closed_booth_filled"):  # booth software's watertight mesh
+        from core.synth.hole_filling import filled_mesh  # of its own raw scan
 
-        Xr, _, Nr = raw_scan(P, rng)
+        surface = None
+        if booth:  # the booth subject's hair, scanned with the body (drawn as closed_booth's)
+            hair = [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
+            hair = hair_asked if hair_asked is not None else hair
+            if hair is not None:
+                Vh, Fh, out["hair"] = hair_mesh(P, hair, np.random.default_rng([seed, 104]))
+                surface = (Vh, Fh)
+        Xr, _, Nr = raw_scan(P, rng, hair=surface)
         h = float(rng.uniform(0.006, 0.008))
         want = int(rng.uniform(10_000, 15_000))
         X, F = filled_mesh(Xr, Nr, h, want)
@@ -922,7 +931,7 @@ def make_case(
             F, normals = None, None
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
-                "closed_filled"):  # fmt: skip
+                "closed_filled", "closed_booth_filled"):  # fmt: skip
         units, up, facing, shift = "mm", "+y", 0.0, np.zeros(3)
     else:
         units = str(rng.choice(list(UNITS)))
@@ -983,7 +992,8 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     """``n`` varied (seed, kind) pairs: every kind in turn, the dense kind rarer (slow), and for
     every fourth body both a ``closed_lowres`` and a ``raw`` twin (same body: the
     closed-vs-raw agreement check)."""
-    apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled")
+    apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled",
+             "closed_booth_filled")  # fmt: skip
     base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS)]
     out: list[tuple[int, str]] = []
     seed = i = 0

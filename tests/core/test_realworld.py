@@ -310,7 +310,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
-        *TILTED_KINDS, "closed_filled",
+        *TILTED_KINDS, "closed_filled", "closed_booth_filled",
     }  # fmt: skip
 
 
@@ -562,3 +562,29 @@ def test_filled_meshes_are_booth_softwares_meshes_of_their_own_raw_scan():
         + palm_cases(20) + tilted_cases(24) + decimated_cases(16)
     }  # fmt: skip
     assert make_case(900, "raw").body_key == c.body_key
+
+
+def test_booth_subjects_hole_filled_keep_their_hair_and_touching_arms():
+    """closed_booth_filled: closed_booth-300's subject (the same body, posture and bun) scanned
+    raw with its hair and hole-filled (``bench.realworld --booth --filled``): 10-15 k vertices,
+    mm, +Y up, no open edge, the arms touching the torso fused to it (a handle: genus > 0), and
+    the bun on the mesh where the skin is not."""
+    c = make_case(300, "closed_booth_filled")
+    b = make_case(300, "closed_booth")
+    assert c.units == "mm" and c.up == "+y" and c.F is not None
+    assert 10_000 <= len(c.V) <= 15_000, len(c.V)
+    assert c.params["posture"] == b.params["posture"] and c.params["posture"]["touching"]
+    hair = c.params["output"]["hair"]
+    assert hair["style"] == b.params["output"]["hair"]["style"] == "bun"
+    assert "hair bun" in c.description and "arms touching torso" in c.description
+    und, _ = _edge_uses(c.F)
+    assert np.all(und % 2 == 0) and np.sum(und != 2) <= 20, np.bincount(und)
+    edges = np.unique(
+        np.sort(np.concatenate([c.F[:, [0, 1]], c.F[:, [1, 2]], c.F[:, [2, 0]]]), 1), axis=0
+    )
+    assert len(c.V) - len(edges) + len(c.F) < 2  # Euler characteristic: not a sphere
+    X, truth = _canonical(c)
+    d = MeshDistance(truth, np.asarray(load_template().F, np.int64)).distances(X)
+    assert np.median(d) < 0.0015, np.median(d)
+    bun = np.linalg.norm(X - np.asarray(hair["bun"]["centre"]), axis=1) < hair["bun"]["radius"]
+    assert bun.sum() > 20 and np.percentile(d[bun], 90) > 0.015, (bun.sum(), d[bun].max())
