@@ -989,10 +989,15 @@ def fit_markerless(
             # an open hand clear of the body: its fingertip just past where the scanned hand
             # ends (the first fit's came from the shape coefficients: the fingers take no data;
             # a coarse mesh rounds the tip off: :func:`tip_allowance`)
+            # (a closed mesh's mitten: on the hand's axis, :meth:`HandEnd.fingertip`; there the
+            # fingertip's landmark set the hands 4-10 mm off the truth where their raw twins' were
+            # 3-5: ``bench.realworld --filled`` correspondence 8.58 -> 8.36 mm, hands 8.3/9.0 ->
+            # 7.7/7.9, twins 4.70 -> 4.38)
             skip = fists + resting
             tip = tip_allowance(round_index)
+            mitten = round_index.closing_radius_m > 0
             for x, end in free_hand_ends(round_index, res.vertices, skip=skip).items():
-                marks[f"Dactylion_{x}"] = end.point + tip * end.axis
+                marks[f"Dactylion_{x}"] = end.fingertip(tip, on_axis=mitten)
             # the toe tips just past where the scanned feet end (the first fit's came from the
             # shape coefficients where the toes take no data: ``core.registration.foot_end``)
             toe = toe_allowance(round_index)

@@ -111,12 +111,24 @@ def tip_allowance(index: ScanIndex) -> float:
 @dataclass
 class HandEnd:
     """Where a scanned hand ends: ``reach_m`` past the wrist along the hand's axis (metres),
-    the scan point there (``point``, (3,), scan frame) and the hand's unit axis (``axis``,
-    (3,), wrist to middle fingertip of the fitted body)."""
+    the scan point there (``point``, (3,), scan frame), the hand's unit axis (``axis``, (3,),
+    wrist to middle fingertip of the fitted body) and its wrist (``wrist``, (3,), the styloids'
+    midpoint)."""
 
     reach_m: float
     point: np.ndarray
     axis: np.ndarray
+    wrist: np.ndarray
+
+    def fingertip(self, allowance_m: float, on_axis: bool = False) -> np.ndarray:
+        """(3,) where the middle fingertip lies: ``allowance_m`` past the scanned end along the
+        hand's axis, from the end's scan point, or (``on_axis``) on the axis itself at that
+        reach. A closed mesh's fused mitten ends in a tip rounded over all four fingers, its
+        furthest points off the middle finger's line: a landmark there turned the hand (on
+        ``bench.realworld --filled``, closed_filled-904's right hand 5° and 8 mm back)."""
+        if on_axis:
+            return self.wrist + (self.reach_m + allowance_m) * self.axis
+        return self.point + allowance_m * self.axis
 
 
 def _scanned_hand_points(
@@ -156,7 +168,8 @@ def scanned_hand_end(
     if len(ids) < MIN_HAND_POINTS:
         return None
     k = np.argsort(t)[-END_RANK]
-    return HandEnd(float(t[k]), index.points[ids[k]].copy(), _wrist_axis(X, side, tpl)[1])
+    wrist, axis, _ = _wrist_axis(X, side, tpl)
+    return HandEnd(float(t[k]), index.points[ids[k]].copy(), axis, wrist)
 
 
 #: share of the fitted hand's length (from the wrist) whose scan points make the hand's
