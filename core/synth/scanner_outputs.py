@@ -607,6 +607,23 @@ def clutter(body: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.
     return np.vstack(Vs), np.vstack(Fs), {"blobs": nb, "floor_ring_m": (r0, r1)}
 
 
+def _booth_hair(brng: np.random.Generator) -> str | None:
+    """A booth subject's hair: none or one of :data:`HAIR_STYLES`, drawn from its protocol's
+    generator ``brng``."""
+    return [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
+
+
+def _scanned_hair(
+    P: np.ndarray, style: str | None, seed: int, out: dict
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The hair surface (vertices, triangles; :func:`hair_mesh`) of ``style`` on the body P
+    (n, 3) for :func:`raw_scan`, its parameters put in ``out["hair"]``; None without hair."""
+    if style is None:
+        return None
+    Vh, Fh, out["hair"] = hair_mesh(P, style, np.random.default_rng([seed, 104]))
+    return Vh, Fh
+
+
 def hair_mesh(
     V: np.ndarray, style: str, rng: np.random.Generator, voxel_m: float = 0.004
 ) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -865,13 +882,9 @@ def make_case(
     if kind in ("closed_filled", "closed_booth_filled"):  # booth software's watertight mesh
         from core.synth.hole_filling import filled_mesh  # of its own raw scan
 
-        surface = None
         if booth:  # the booth subject's hair, scanned with the body (drawn as closed_booth's)
-            hair = [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
-            hair = hair_asked if hair_asked is not None else hair
-            if hair is not None:
-                Vh, Fh, out["hair"] = hair_mesh(P, hair, np.random.default_rng([seed, 104]))
-                surface = (Vh, Fh)
+            hair = _booth_hair(brng) if hair_asked is None else hair_asked
+        surface = _scanned_hair(P, hair if booth else None, seed, out)
         Xr, _, Nr = raw_scan(P, rng, hair=surface)
         h = float(rng.uniform(0.006, 0.008))
         want = int(rng.uniform(10_000, 15_000))
@@ -885,7 +898,7 @@ def make_case(
         h = h if voxel_m is None else float(voxel_m)
         hair = str(rng.choice(HAIR_STYLES)) if kind == "closed_hair" else None
         if booth:
-            hair = [None, *HAIR_STYLES][int(brng.integers(len(HAIR_STYLES) + 1))]
+            hair = _booth_hair(brng)
         if hair_asked is not None:  # drawn above all the same: the rest of the case is as always
             hair = hair_asked
         floor = "plate" if kind == "closed_plate" or (booth and brng.random() < 0.2) else "cut"
@@ -914,11 +927,7 @@ def make_case(
         F = None
         out["points"] = len(X)
     else:
-        surface = None
-        if hair is not None:
-            Vh, Fh, out["hair"] = hair_mesh(P, hair, np.random.default_rng([seed, 104]))
-            surface = (Vh, Fh)
-        X, F, normals = raw_scan(P, rng, hair=surface)
+        X, F, normals = raw_scan(P, rng, hair=_scanned_hair(P, hair, seed, out))
         if kind == "raw_inward":
             F, normals, flip = wind_arms_inward(X, F, normals, P)
             out["flipped_faces"] = int(flip.sum())
