@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+import os
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import ParamSpec, TypeVar
 
 from threadpoolctl import threadpool_limits
 
 P = ParamSpec("P")
 R = TypeVar("R")
+T = TypeVar("T")
 
 
 def single_blas_thread(func: Callable[P, R]) -> Callable[P, R]:
@@ -34,3 +38,63 @@ def single_blas_thread(func: Callable[P, R]) -> Callable[P, R]:
 #: 8.37/8.07 s with workers=-1 vs 6.98/7.46 s with 1, wall 13.7/12.9 vs 10.9/11.4 s; raw-31 CPU
 #: 12.1/9.4 vs 8.9/9.5 s, wall 20.0/15.7 vs 13.8/14.2 s; identical results.
 KD_WORKERS = 1
+
+
+#: Environment variable: how many threads a fit runs its independent trial fits on (the
+#: markerless search's starts, the near-tied first fits, a round's two body-prior starts).
+FIT_THREADS_ENV = "BODYSPACE_FIT_THREADS"
+
+
+def share_cpus(processes: int | None) -> None:
+    """Set :data:`FIT_THREADS_ENV` (unless it is set) for ``processes`` processes that each run
+    fits at once (a Celery worker's pool, ``bench.realworld --jobs``): the CPUs shared out,
+    at least one thread each. Call before the processes start (they inherit it)."""
+    if os.environ.get(FIT_THREADS_ENV, "").strip() or not processes:
+        return
+    os.environ[FIT_THREADS_ENV] = str(max(1, available_cpus() // max(1, processes)))
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover (not Linux)
+        return os.cpu_count() or 1
+
+
+def fit_threads() -> int:
+    """Threads for a fit's independent trial fits: ``$BODYSPACE_FIT_THREADS``, else the CPUs
+    this process may run on, at most 4 (a fit has a few trials at a time, up to ~12)."""
+    raw = os.environ.get(FIT_THREADS_ENV, "").strip()
+    if raw:
+        try:
+            return max(1, int(raw))
+        except ValueError:
+            raise ValueError(f"{FIT_THREADS_ENV} must be a whole number, got {raw!r}") from None
+    return max(1, min(4, available_cpus()))
+
+
+def map_in_threads(func: Callable[[T], R], items: Sequence[T]) -> list[R]:
+    """``[func(x) for x in items]``, run on :func:`fit_threads` threads (in order; the first
+    exception is raised). The trial fits' numpy, BLAS and KD-tree work releases the GIL."""
+    n = min(fit_threads(), len(items))
+    if n <= 1:
+        return [func(x) for x in items]
+    with ThreadPoolExecutor(max_workers=n, thread_name_prefix="fit") as pool:
+        return list(pool.map(func, items))
+
+
+def serialised(func: Callable[P, R] | None) -> Callable[P, R] | None:
+    """``func`` behind a lock (None stays None): a progress callback that trial fits on
+    :func:`map_in_threads` may call at once."""
+    if func is None:
+        return None
+    lock = threading.Lock()
+    inner = func
+
+    @functools.wraps(inner)
+    def locked(*args: P.args, **kwargs: P.kwargs) -> R:
+        with lock:
+            return inner(*args, **kwargs)
+
+    return locked

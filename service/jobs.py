@@ -23,6 +23,7 @@ from typing import Protocol
 
 from sqlalchemy import select
 
+from core.threads import share_cpus
 from service.settings import Settings
 
 log = logging.getLogger("bodyspace.service")
@@ -119,6 +120,7 @@ class EmbeddedRunner:
         return self._lock_fd is not None
 
     def _new_pool(self) -> ProcessPoolExecutor:
+        share_cpus(self.settings.workers)  # each pool process's fit threads (inherited)
         return ProcessPoolExecutor(
             max_workers=max(1, self.settings.workers),
             mp_context=multiprocessing.get_context("spawn"),

@@ -12,6 +12,8 @@ the file, else estimated from the distance to the nearest boundary and isolation
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -27,7 +29,9 @@ from core.io.markers import read_markers
 from core.io.orient import orient_components
 from core.io.readers import read_mesh
 from core.scan import FrameInfo, RawMesh, Scan
-from core.threads import KD_WORKERS
+from core.threads import KD_WORKERS, fit_threads, map_in_threads
+
+T = TypeVar("T")
 
 K_NEIGHBOURS = 10  # PCA normals and orientation
 K_BOUNDARY = 20  # boundary test (larger: robust to random sampling)
@@ -208,9 +212,22 @@ def _radial(V: np.ndarray, slab: float = 0.05) -> np.ndarray:
     return normalize(r, fallback=(0.0, 0.0, 0.0))
 
 
+def _by_blocks(func: Callable[[np.ndarray], T], n: int) -> list[T]:
+    """``func(rows)`` of consecutive blocks of ``range(n)``, one per fit thread
+    (:func:`core.threads.map_in_threads`): the per-point work of a large cloud side by side."""
+    blocks = np.array_split(np.arange(n), max(1, min(fit_threads(), n // 20000)))
+    return map_in_threads(func, blocks)
+
+
 def _pca_normals(V: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """PCA normals (n, 3) of the k-neighbourhoods and surface variation (n,) in [0, 1/3]."""
-    P = V[nbr]  # (n, k, 3)
+    parts = _by_blocks(lambda rows: _pca_normals_of(V, nbr[rows]), len(nbr))
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+def _pca_normals_of(V: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_pca_normals` of the points whose neighbours are ``nbr`` (m, k)."""
+    P = V[nbr]  # (m, k, 3)
     P -= P.mean(axis=1, keepdims=True)
     C = np.einsum("nki,nkj->nij", P, P)
     vals, vecs = np.linalg.eigh(C)
@@ -229,14 +246,7 @@ def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray
     n, k = nbr.shape
     rows = np.repeat(np.arange(n), k - 1)
     cols = nbr[:, 1:].ravel()
-    # per point and neighbour (n, k - 1): no (n·(k - 1), 3) copies of the point's own normal
-    Nc = N[nbr[:, 1:]]
-    dots = np.einsum("nkc,nc->nk", Nc, N)
-    D = V[nbr[:, 1:]] - V[:, None, :]
-    L = np.sqrt(np.einsum("nkc,nkc->nk", D, D))
-    D = np.divide(D, L[:, :, None], out=np.zeros_like(D), where=(L > 1e-30)[:, :, None])
-    across = np.abs(np.einsum("nc,nkc->nk", N, D)) + np.abs(np.einsum("nkc,nkc->nk", Nc, D))
-    w = (1.0 - np.abs(dots) + 0.5 * across + 3.0 * (var[:, None] + var[nbr[:, 1:]]) + 1e-6).ravel()
+    w = np.concatenate(_by_blocks(lambda r: _edge_costs(N, var, nbr[r], V, r), n), axis=None)
     G = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     G = G.maximum(G.T)
     T = csgraph.minimum_spanning_tree(G).tocoo()
@@ -264,6 +274,22 @@ def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray
     npieces, plabel = csgraph.connected_components(pieces, directed=False)
     score = np.bincount(plabel, weights=np.einsum("ij,ij->i", N, _radial(V)), minlength=npieces)
     return np.where((score < 0)[plabel][:, None], -N, N)
+
+
+def _edge_costs(
+    N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray, rows: np.ndarray
+) -> np.ndarray:
+    """:func:`_orient_cloud`'s edge costs (m, k - 1) from the points ``rows`` (m,) to their
+    neighbours ``nbr`` (m, k) (the first: the point itself)."""
+    # per point and neighbour: no (m·(k - 1), 3) copies of the point's own normal
+    Nr, Vr = N[rows], V[rows]
+    Nc = N[nbr[:, 1:]]
+    dots = np.einsum("nkc,nc->nk", Nc, Nr)
+    D = V[nbr[:, 1:]] - Vr[:, None, :]
+    L = np.sqrt(np.einsum("nkc,nkc->nk", D, D))
+    D = np.divide(D, L[:, :, None], out=np.zeros_like(D), where=(L > 1e-30)[:, :, None])
+    across = np.abs(np.einsum("nc,nkc->nk", Nr, D)) + np.abs(np.einsum("nkc,nkc->nk", Nc, D))
+    return 1.0 - np.abs(dots) + 0.5 * across + 3.0 * (var[rows, None] + var[nbr[:, 1:]]) + 1e-6
 
 
 def _cloud_boundary(V: np.ndarray, N: np.ndarray, nbr: np.ndarray, dist: np.ndarray):

@@ -65,7 +65,7 @@ from core.registration.shape_prior import (
 from core.rig import axis_angle, joint_positions, load_rig
 from core.scan import Scan
 from core.template import load_template
-from core.threads import KD_WORKERS, single_blas_thread
+from core.threads import KD_WORKERS, map_in_threads, serialised, single_blas_thread
 
 K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
 
@@ -495,14 +495,19 @@ def search_starts(
         )  # fmt: skip
 
     scores: list[dict[str, Any]] = []
-    rigid = []
-    for i, sim in enumerate(candidate_alignments(scan)):
-        for gi, V0 in templates:
-            t = run(V0, sim, None, 3, False)
-            sc = two_way_score(index, t.X, body_ids, scan_ids)
-            rigid.append((sc, i, gi, V0, t))
-            scores.append({"stage": "rigid", "candidate": i, "girth": gi, "score": sc,
-                           "coverage": t.coverage})  # fmt: skip
+
+    def rigid_fit(trial: tuple[int, Similarity, float, np.ndarray]) -> tuple:
+        i, sim, gi, V0 = trial
+        t = run(V0, sim, None, 3, False)
+        return (two_way_score(index, t.X, body_ids, scan_ids), i, gi, V0, t)
+
+    trials = [
+        (i, s, gi, V0) for i, s in enumerate(candidate_alignments(scan)) for gi, V0 in templates
+    ]
+    rigid = map_in_threads(rigid_fit, trials)
+    for sc, i, gi, _, t in rigid:
+        scores.append({"stage": "rigid", "candidate": i, "girth": gi, "score": sc,
+                       "coverage": t.coverage})  # fmt: skip
     rigid.sort(key=lambda r: r[0])
     plain = [r for r in rigid if r[2] == 1.0]
     hypotheses = arm_hypotheses(scan)
@@ -513,31 +518,37 @@ def search_starts(
         flip = [r for r in plain if _stands_head_down(r[4].similarity) not in ways][:1]
     starts: list[Start] = []
 
-    def arms_start(r: tuple, abd: float) -> Start:
-        _, i, gi, V0, t = r
+    def arms_start(trial: tuple[tuple, float]) -> Start:
+        (_, i, gi, V0, t), abd = trial
         a = run(V0, t.similarity, arm_pose(abd), 6, True)
         sc = two_way_score(index, a.X, body_ids, scan_ids)
         label = f"candidate {i}{f', girth ×{gi:.2f}' if gi != 1.0 else ''}, arms {abd:.0f}°"
-        scores.append({"stage": "articulated", "candidate": i, "girth": gi, "arms_deg": abd,
-                       "score": sc, "coverage": a.coverage})  # fmt: skip
         return Start(a.similarity, a.pose, a.coefficients, sc, a.coverage, label)
 
-    for r in chosen:
-        starts += [arms_start(r, abd) for abd in hypotheses]
+    def arms_starts(trials: list[tuple[tuple, float]]) -> list[Start]:
+        """:func:`arms_start` of each (rigid fit, abduction) (on :func:`map_in_threads`),
+        its score recorded in ``scores``, in order."""
+        got = map_in_threads(arms_start, trials)
+        for ((_, i, gi, _, _), abd), st in zip(trials, got, strict=True):
+            scores.append({"stage": "articulated", "candidate": i, "girth": gi, "arms_deg": abd,
+                           "score": st.score, "coverage": st.coverage})  # fmt: skip
+        return got
+
+    starts += arms_starts([(r, abd) for r in chosen for abd in hypotheses])
     mid_abd = ARM_HYPOTHESES[len(ARM_HYPOTHESES) // 2]
     for r in flip:  # the middle arm hypothesis; the others where it beats every start so far
-        st = arms_start(r, mid_abd)
+        (st,) = arms_starts([(r, mid_abd)])
         if st.score < min(x.score for x in starts):
-            starts += [arms_start(r, abd) for abd in hypotheses if abd != mid_abd]
+            starts += arms_starts([(r, abd) for abd in hypotheses if abd != mid_abd])
         starts.append(st)
     wide = [r for r in rigid if r[2] != 1.0]
     if wide:
         # a heavy body's rigid scores read 1.5-1.6 whichever way up or round: each candidate
         # of the widened template gets the middle arm hypothesis, the best one the others
-        tried = [(arms_start(r, mid_abd), r) for r in wide]
+        tried = list(zip(arms_starts([(r, mid_abd) for r in wide]), wide, strict=True))
         starts += [st for st, _ in tried]
         best = min(tried, key=lambda x: x[0].score)[1]
-        starts += [arms_start(best, abd) for abd in hypotheses if abd != mid_abd]
+        starts += arms_starts([(best, abd) for abd in hypotheses if abd != mid_abd])
     starts.sort(key=lambda st: st.score)
     return starts, scores
 
@@ -785,6 +796,7 @@ def fit_markerless(
     """
     frame = "" if scan.frame is None else f"units {scan.frame.units}, up {scan.frame.up}"
     check_body_shape(scan.V, scan.F, frame=frame)
+    callback = serialised(callback)  # near-tied first fits may report at once
     index = ScanIndex(scan)
     starts, scores = search_starts(scan, index)
     tied = [_head_start(index, st, scores) for st in near_tied(starts, min_coverage)]
@@ -857,19 +869,22 @@ def fit_markerless(
         """:func:`two_way_score` of a body X (13380, 3) against the scan."""
         return two_way_score(index, X, body_ids, scan_sample(index, 12000))
 
-    start, res = tied[0], first_fit(tied[0], scan, index)
     tie_note = ""
-    if sum(len(v[2]) for v in views) > 1:
+    if sum(len(v[2]) for v in views) == 1:
+        start, res = tied[0], first_fit(tied[0], scan, index)
+    else:
         # near-tied starts (often arms 30° vs 50°, one with a leg on the wrong foot; or the
         # body upright vs head-down): the shape-space fit from each tells them apart where the
         # search's short fits cannot. The scan sample is the same points in either view.
         scan_ids = scan_sample(index, 12000)
-        fits = [
-            (two_way_score(vi, r.vertices, body_ids, scan_ids), st, r, k)
-            for k, (vs, vi, sts) in enumerate(views)
-            for st in sts
-            for r in [res if st is tied[0] else first_fit(st, vs, vi)]
-        ]
+        trials = [(k, st, vs, vi) for k, (vs, vi, sts) in enumerate(views) for st in sts]
+
+        def scored(trial: tuple[int, Start, Scan, ScanIndex]) -> tuple:
+            k, st, vs, vi = trial
+            r = first_fit(st, vs, vi)
+            return (two_way_score(vi, r.vertices, body_ids, scan_ids), st, r, k)
+
+        fits = map_in_threads(scored, trials)
         _, start, res, k = min(fits, key=lambda f: f[0])
         if k == 1:  # the other way up won: the caller's scan takes that view, in place
             assert alt_scan is not None
@@ -899,13 +914,16 @@ def fit_markerless(
             x for x in "LR" if own[x] > POOR_HAND and x not in fisted and gaps[x] >= resting
         )
     if poor and prior is not None:
-        tried = []
-        for tw in HAND_TWISTS:
+        body_prior = prior
+
+        def twisted(tw: float) -> tuple[float, Start, FitResult]:
             what = f"forearm {'+'.join(poor)} twisted {tw:+.0f}°"
-            st, r_tw = refit(prior, twisted_pose(prior, poor, tw), what, quick=True)
-            got = sum(hand_mismatch(index, r_tw.vertices, x) for x in poor)
+            st, r_tw = refit(body_prior, twisted_pose(body_prior, poor, tw), what, quick=True)
+            return sum(hand_mismatch(index, r_tw.vertices, x) for x in poor), st, r_tw
+
+        tried = map_in_threads(twisted, HAND_TWISTS)
+        for tw, (got, _, _) in zip(HAND_TWISTS, tried, strict=True):
             scores.append({"stage": "hand", "twist_deg": tw, "own": own, "twisted": got})
-            tried.append((got, st, r_tw))
         best = min(tried, key=lambda t: t[0])
         worst = max(t[0] for t in tried)
         base = sum(own[x] for x in poor)

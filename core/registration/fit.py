@@ -69,7 +69,7 @@ from core.registration.shape_prior import (
 from core.registration.solver import AffineSolver, SystemTerms, energies
 from core.scan import Scan
 from core.template import Template, load_template
-from core.threads import single_blas_thread
+from core.threads import map_in_threads, single_blas_thread
 
 
 @dataclass
@@ -692,17 +692,18 @@ def initial_body(
             vertex_weight=vw, measure=False, **options.kwargs(),
         )  # fmt: skip
 
-    prior = prior_from(align.similarity, po)
-    if prior_restart is not None:
+    if prior_restart is None:
+        prior = prior_from(align.similarity, po)
+    else:  # the two starts' body priors are independent: fitted side by side
         p0 = prior_restart.prior
-        again = prior_from(
-            p0.similarity,
-            replace(
-                po,
-                initial_pose=p0.pose,
-                initial_coefficients=p0.coefficients,
-                iterations=prior_restart.iterations or po.iterations,
-            ),
+        restarted = replace(
+            po,
+            initial_pose=p0.pose,
+            initial_coefficients=p0.coefficients,
+            iterations=prior_restart.iterations or po.iterations,
+        )
+        prior, again = map_in_threads(
+            lambda a: prior_from(*a), [(align.similarity, po), (p0.similarity, restarted)]
         )
         s_new, s_again = prior_restart.score(prior.X), prior_restart.score(again.X)
         use_again = s_again < s_new - prior_restart.margin

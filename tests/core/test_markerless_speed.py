@@ -221,3 +221,62 @@ def test_bone_transforms_without_validation_is_the_same_and_validation_still_ref
     np.testing.assert_array_equal(t1, t2)
     with pytest.raises(ValueError, match="not a proper rotation"):
         bone_transforms({"neck01": 2 * np.eye(3)}, rig.heads)
+
+
+def test_trial_fits_run_side_by_side_and_give_the_same_body(monkeypatch):
+    import threading
+
+    import core.matching.markerless as ml
+    import core.registration.fit as fit_mod
+    from core.registration.schedule import Schedule
+    from core.threads import FIT_THREADS_ENV
+
+    threads: set[str] = set()
+
+    def spied(real):
+        def spy(*a, **k):
+            threads.add(threading.current_thread().name)
+            return real(*a, **k)
+
+        return spy
+
+    monkeypatch.setattr(ml, "fit_body_prior", spied(ml.fit_body_prior))
+    monkeypatch.setattr(fit_mod, "fit_body_prior", spied(fit_mod.fit_body_prior))
+    c = make_case(105, small=True)
+    got = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv(FIT_THREADS_ENV, n)
+        threads.clear()
+        got[n] = (ml.fit_markerless(c.scan, schedule=Schedule.fast()), set(threads))
+    (one, seen_one), (two, seen_two) = got["1"], got["2"]
+    assert seen_one == {"MainThread"}
+    # the search's starts and the round's two body-prior starts ran on two pool threads
+    assert len({t for t in seen_two if t.startswith("fit")}) == 2
+    np.testing.assert_array_equal(one.vertices, two.vertices)
+    assert one.report.notes == two.report.notes
+
+
+def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
+    from core.threads import (
+        FIT_THREADS_ENV,
+        available_cpus,
+        fit_threads,
+        map_in_threads,
+        share_cpus,
+    )
+
+    monkeypatch.setenv(FIT_THREADS_ENV, "3")
+    assert fit_threads() == 3
+    share_cpus(8)  # set already: left as it is
+    assert fit_threads() == 3
+    monkeypatch.setenv(FIT_THREADS_ENV, "two")
+    with pytest.raises(ValueError, match=FIT_THREADS_ENV):
+        fit_threads()
+    monkeypatch.delenv(FIT_THREADS_ENV)
+    assert fit_threads() == max(1, min(4, available_cpus()))
+    share_cpus(available_cpus())  # a pool of one process per CPU: one thread each
+    assert fit_threads() == 1
+    monkeypatch.setenv(FIT_THREADS_ENV, "2")
+    assert map_in_threads(lambda x: x * x, [3, 1, 2]) == [9, 1, 4]  # in order
+    with pytest.raises(ZeroDivisionError):
+        map_in_threads(lambda x: 1 // x, [1, 0])
