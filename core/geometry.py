@@ -7,13 +7,14 @@ template import these).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from core.threads import KD_WORKERS
+from core.threads import fit_threads, kd_workers, map_in_threads
 
 
 @dataclass
@@ -198,6 +199,10 @@ def closest_point_on_triangles(
     return out
 
 
+#: Fewest query points per thread worth a block of their own (:meth:`MeshDistance.distances`).
+PARALLEL_MIN_POINTS = 20_000
+
+
 class MeshDistance:
     """Exact distance from query points to a triangle mesh V (n, 3), F (m, 3).
 
@@ -220,15 +225,21 @@ class MeshDistance:
         self.inc = inc
 
     def distances(self, P: np.ndarray, chunk: int = 200_000) -> np.ndarray:
-        """Distances (q,) from points P (q, 3) to the mesh (same units as V)."""
+        """Distances (q,) from points P (q, 3) to the mesh (same units as V); blocks of at most
+        ``chunk`` points, side by side on :func:`core.threads.fit_threads` threads."""
         P = np.asarray(P, dtype=np.float64)
-        out = np.empty(len(P))
-        for s in range(0, len(P), chunk):
-            out[s : s + chunk] = self._distances(P[s : s + chunk])
-        return out
+        q = len(P)
+        if q == 0:
+            return np.empty(0)
+        blocks = max(-(-q // chunk), min(fit_threads(), q // PARALLEL_MIN_POINTS))
+        bounds = np.linspace(0, q, blocks + 1).astype(int)
+        parts = map_in_threads(
+            lambda b: self._distances(P[b[0] : b[1]]), list(itertools.pairwise(bounds))
+        )
+        return np.concatenate(parts)
 
     def _distances(self, P: np.ndarray) -> np.ndarray:
-        _, nn = self.tree.query(P, k=self.k, workers=KD_WORKERS)
+        _, nn = self.tree.query(P, k=self.k, workers=kd_workers())
         nn = nn.reshape(len(P), -1)
         q = len(P)
         rows = np.repeat(np.arange(q), nn.shape[1])

@@ -32,12 +32,17 @@ def single_blas_thread(func: Callable[P, R]) -> Callable[P, R]:
     return wrapper
 
 
-#: Threads of the fit's repeated KD-tree queries (``cKDTree.query(workers=)``): one, as for BLAS.
-#: scipy starts and joins threads on every query; the fit makes ~150-200 of 2-13 k points each.
-#: Measured (``service.cli.run_fit``, markerless, same process, load ~7 on 2 cores): raw-0 CPU
-#: 8.37/8.07 s with workers=-1 vs 6.98/7.46 s with 1, wall 13.7/12.9 vs 10.9/11.4 s; raw-31 CPU
-#: 12.1/9.4 vs 8.9/9.5 s, wall 20.0/15.7 vs 13.8/14.2 s; identical results.
-KD_WORKERS = 1
+def kd_workers() -> int:
+    """Threads of a KD-tree query (``cKDTree.query(workers=)``): the fit's
+    (:func:`fit_threads`), but one inside a trial running on :func:`map_in_threads` (its
+    siblings hold the other CPUs). Where several fits share the CPUs (a worker's pool) that is one
+    too: scipy starts and joins threads on every query, and at load ~7 on 2 cores
+    ``workers=-1`` cost CPU (raw-0 8.37/8.07 s against 6.98/7.46 s with 1, raw-31 12.1/9.4
+    against 8.9/9.5 s; identical results)."""
+    return 1 if getattr(_trial, "running", False) else fit_threads()
+
+
+_trial = threading.local()
 
 
 #: Environment variable: how many threads a fit runs its independent trial fits on (the
@@ -76,12 +81,21 @@ def fit_threads() -> int:
 
 def map_in_threads(func: Callable[[T], R], items: Sequence[T]) -> list[R]:
     """``[func(x) for x in items]``, run on :func:`fit_threads` threads (in order; the first
-    exception is raised). The trial fits' numpy, BLAS and KD-tree work releases the GIL."""
+    exception is raised); in turn when called from such a thread. The trial fits' numpy, BLAS and
+    KD-tree work releases the GIL."""
     n = min(fit_threads(), len(items))
-    if n <= 1:
+    if n <= 1 or getattr(_trial, "running", False):  # no pools within a trial
         return [func(x) for x in items]
+
+    def trial(x: T) -> R:
+        _trial.running = True
+        try:
+            return func(x)
+        finally:
+            _trial.running = False
+
     with ThreadPoolExecutor(max_workers=n, thread_name_prefix="fit") as pool:
-        return list(pool.map(func, items))
+        return list(pool.map(trial, items))
 
 
 def serialised(func: Callable[P, R] | None) -> Callable[P, R] | None:

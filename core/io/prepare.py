@@ -29,7 +29,7 @@ from core.io.markers import read_markers
 from core.io.orient import orient_components
 from core.io.readers import read_mesh
 from core.scan import FrameInfo, RawMesh, Scan
-from core.threads import KD_WORKERS, fit_threads, map_in_threads
+from core.threads import fit_threads, kd_workers, map_in_threads
 
 T = TypeVar("T")
 
@@ -353,7 +353,7 @@ def _crack_edges(V: np.ndarray, E: np.ndarray, side: np.ndarray | None = None) -
         out = np.zeros(len(Q), bool)
         for lo in range(0, len(Q), CRACK_CHUNK):
             q, e = Q[lo : lo + CRACK_CHUNK], qe[lo : lo + CRACK_CHUNK]
-            _, nb = tree.query(q, k=k, distance_upper_bound=reach, workers=KD_WORKERS)
+            _, nb = tree.query(q, k=k, distance_upper_bound=reach, workers=kd_workers())
             i, j = np.nonzero(nb.reshape(len(q), k) < len(X))
             c = x_edge[nb.reshape(len(q), k)[i, j]]
             i, c = i[c != e[i]], c[c != e[i]]
@@ -425,7 +425,7 @@ def _estimate_confidence(
     ramp = max(CONF_RAMP_MIN, 3.0 * spacing)
     conf = np.ones(len(V))
     if boundary.any():
-        d, _ = cKDTree(V[boundary]).query(V, k=1, distance_upper_bound=ramp, workers=KD_WORKERS)
+        d, _ = cKDTree(V[boundary]).query(V, k=1, distance_upper_bound=ramp, workers=kd_workers())
         conf = CONF_MIN + (1.0 - CONF_MIN) * np.clip(d / ramp, 0.0, 1.0)
     conf[isolated] = CONF_MIN
     return conf
@@ -494,7 +494,7 @@ def prepare_scan(raw: RawMesh, frame: FrameInfo, *, decimate_above: int = DECIMA
             vn[flat] = normalize(acc[flat], fallback=(0.0, 0.0, 0.0))
             flat &= row_norms(vn) == 0.0
         if flat.any() and not flat.all():
-            _, j = cKDTree(V[~flat]).query(V[flat], workers=KD_WORKERS)
+            _, j = cKDTree(V[~flat]).query(V[flat], workers=kd_workers())
             vn[flat] = vn[~flat][j]
         vn[row_norms(vn) == 0.0] = (0.0, 1.0, 0.0)
         E, counts = repair.edges, repair.edge_counts

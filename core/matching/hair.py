@@ -54,7 +54,7 @@ from core.geometry import MeshDistance
 from core.registration.operators import vertex_normals
 from core.scan import Scan
 from core.template import load_template
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 #: The markerless report's note on hair lying on the scalp (see the module docstring).
 FLAT_HAIR_NOTE = (
@@ -140,7 +140,7 @@ def signed_offsets(
     same, at a fraction of the cost: most scan points lie close to the body's vertices).
     """
     N = vertex_normals(X, F)
-    dv, nn = cKDTree(X).query(P, workers=KD_WORKERS)
+    dv, nn = cKDTree(X).query(P, workers=kd_workers())
     d = dv.copy()
     far = np.flatnonzero(dv > exact_beyond)
     if len(far):
@@ -155,7 +155,7 @@ def _cluster_limits(P: np.ndarray) -> tuple[float, int]:
     :data:`HAIR_SPACING_M` or denser, scaled to the median nearest-neighbour spacing beyond."""
     if len(P) < 2:
         return HAIR_LINK_M, HAIR_MIN_POINTS
-    d, _ = cKDTree(P).query(P, k=2, workers=KD_WORKERS)
+    d, _ = cKDTree(P).query(P, k=2, workers=kd_workers())
     h = max(float(np.median(d[:, 1])), HAIR_SPACING_M)
     link = max(HAIR_LINK_M, 1.5 * h)
     least = round(HAIR_MIN_POINTS * (HAIR_SPACING_M / h) ** 2)

@@ -65,7 +65,7 @@ from core.registration.shape_prior import (
 from core.rig import axis_angle, joint_positions, load_rig
 from core.scan import Scan
 from core.template import load_template
-from core.threads import KD_WORKERS, map_in_threads, serialised, single_blas_thread
+from core.threads import kd_workers, map_in_threads, serialised, single_blas_thread
 
 K_SCHEDULE = (6, 6, 12, 12, 24, 24, 40, 40, 60)
 
@@ -426,8 +426,8 @@ def two_way_score(
     Hair, a floor plate or a stray blob add the same to every hypothesis; a body facing the
     wrong way (toes behind the heels) or with its arms where the scan has none pays on both.
     """
-    d_b, _ = index.tree.query(X[body_ids], k=1, workers=KD_WORKERS)
-    d_s, _ = cKDTree(X[body_ids]).query(index.points[scan_ids], k=1, workers=KD_WORKERS)
+    d_b, _ = index.tree.query(X[body_ids], k=1, workers=kd_workers())
+    d_s, _ = cKDTree(X[body_ids]).query(index.points[scan_ids], k=1, workers=kd_workers())
     s2 = SCORE_SIGMA**2
     return float(np.mean(d_b**2 / (d_b**2 + s2)) + np.mean(d_s**2 / (d_s**2 + s2)))
 

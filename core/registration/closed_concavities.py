@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from core.geometry import MeshDistance, vertex_normals
 from core.registration.shape_prior import fisted_rest
 from core.template import load_template
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 if TYPE_CHECKING:
     from core.template import Template
@@ -85,7 +85,7 @@ MITTEN_WRIST_BAND_M = 0.03
 def inaccessible(P: np.ndarray, N: np.ndarray, tree: cKDTree, r: float, tol: float) -> np.ndarray:
     """(q,) bool: points P (q, 3) with outward unit normals N (q, 3) where a ball of radius r
     (metres) touching from outside holds a point of ``tree`` deeper than ``tol`` inside it."""
-    d, _ = tree.query(P + r * N, workers=KD_WORKERS)
+    d, _ = tree.query(P + r * N, workers=kd_workers())
     return d < r - tol
 
 

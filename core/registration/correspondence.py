@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from core.geometry import vertex_areas, vertex_normals
 from core.scan import Scan
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 #: Points per leaf of the scan's KD-tree (scipy's default 16). raw-35's markerless fit with a
 #: retry (tests/core/test_markerless_speed.py), alternating runs: 7.37-7.57 s CPU with 32 vs
@@ -143,7 +143,7 @@ class ScanIndex:
             return np.zeros((1, 8))
         rng = np.random.default_rng(0)
         sample = self.points[rng.choice(n, min(3000, n), replace=False)]
-        d, _ = self.tree.query(sample, k=9, workers=KD_WORKERS)
+        d, _ = self.tree.query(sample, k=9, workers=kd_workers())
         return d[:, 1:]
 
     @cached_property
@@ -211,16 +211,17 @@ class ScanIndex:
         """
         k = max(1, min(k, len(self.points)))
         cos_lim = float(np.cos(np.deg2rad(max_angle_deg)))
+        workers = kd_workers()
         if project or k == 1:
             return self._match(
-                X, N, max_distance, cos_lim, k, project, smooth_radius, rim_tolerance
+                X, N, max_distance, cos_lim, k, project, smooth_radius, rim_tolerance, workers
             )
         # Without projection only the chosen point matters: where the nearest point is
         # compatible and interior it is the choice (the k-neighbour rule picks it first), so
         # one nearest-point query settles most vertices and the k query runs on the rest only
         # (identical result).
         n = len(X)
-        d1, j1 = self.tree.query(X, k=1, distance_upper_bound=max_distance, workers=KD_WORKERS)
+        d1, j1 = self.tree.query(X, k=1, distance_upper_bound=max_distance, workers=workers)
         valid = np.isfinite(d1)
         jm = np.where(valid, j1, 0)
         dots = np.einsum("nc,nc->n", self.normals[jm], N)
@@ -235,7 +236,15 @@ class ScanIndex:
         redo = np.flatnonzero(~done)
         if len(redo):
             sub = self._match(
-                X[redo], N[redo], max_distance, cos_lim, k, False, smooth_radius, rim_tolerance
+                X[redo],
+                N[redo],
+                max_distance,
+                cos_lim,
+                k,
+                False,
+                smooth_radius,
+                rim_tolerance,
+                workers,
             )
             out.targets[redo] = sub.targets
             out.weights[redo] = sub.weights
@@ -254,10 +263,11 @@ class ScanIndex:
         project: bool,
         smooth_radius: float,
         rim_tolerance: float,
+        workers: int,
     ) -> Correspondences:
         """:meth:`closest_compatible` from the ``k`` nearest points of every vertex."""
         n = len(X)
-        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=KD_WORKERS)
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=workers)
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)
@@ -297,7 +307,7 @@ class ScanIndex:
 
     def distance_to_points(self, X: np.ndarray) -> np.ndarray:
         """Distance (n,) from each of X (n, 3) to the nearest scan point."""
-        d, _ = self.tree.query(X, k=1, workers=KD_WORKERS)
+        d, _ = self.tree.query(X, k=1, workers=kd_workers())
         return d
 
 
@@ -365,7 +375,7 @@ def normals_against_body(scan: Scan, X: np.ndarray, F: np.ndarray) -> np.ndarray
     flipped at the crotch); the data term then finds no compatible points there (the left foot
     26-63 mm off, ``failed``)."""
     N_body = vertex_normals(X, np.asarray(F, dtype=np.int64))
-    d, nearest = cKDTree(X).query(scan.V, workers=KD_WORKERS)
+    d, nearest = cKDTree(X).query(scan.V, workers=kd_workers())
     dots = np.einsum("ij,ij->i", scan.normals, N_body[nearest])
     return (d < NORMAL_CHECK_M) & (dots < AGAINST_BODY_DOT)
 
@@ -404,6 +414,6 @@ def other_foot_matches(
     if len(chk) == 0:
         return out
     feet = np.flatnonzero(foot_side > 0)
-    _, j = cKDTree(X[feet]).query(targets[chk], workers=KD_WORKERS)
+    _, j = cKDTree(X[feet]).query(targets[chk], workers=kd_workers())
     out[chk] = foot_side[feet[j]] != s[chk]
     return out

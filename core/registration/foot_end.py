@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from core.registration.correspondence import ScanIndex
 from core.template import Template, load_template
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 #: the scan's foot end is the n-th furthest foot point along the foot's axis (not a lone outlier)
 END_RANK = 5
@@ -117,14 +117,14 @@ def scanned_foot_end(
         return None
     centre = heel + 0.5 * length * a
     ids = np.asarray(
-        index.tree.query_ball_point(centre, 0.65 * length + FOOT_POINT_GAP_M, workers=KD_WORKERS),
+        index.tree.query_ball_point(centre, 0.65 * length + FOOT_POINT_GAP_M, workers=kd_workers()),
         dtype=np.int64,
     )
     if len(ids) < MIN_FOOT_POINTS:
         return None
     P = index.points[ids]
     tree = cKDTree(X) if body_tree is None else body_tree
-    d, nearest = tree.query(P, distance_upper_bound=FOOT_POINT_GAP_M, workers=KD_WORKERS)
+    d, nearest = tree.query(P, distance_upper_bound=FOOT_POINT_GAP_M, workers=kd_workers())
     near = np.isfinite(d)
     own = tpl.part_mask(f"foot_{side}") | tpl.part_mask(f"shin_{side}")
     keep = near & own[np.where(near, nearest, 0)]

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from core.registration.correspondence import ScanIndex
 from core.registration.quality import hand_body_gaps
 from core.template import Template, load_template
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 #: ANSUR II (development split, 1361 women and 2852 men) hand length / stature, 16th and 84th
 #: percentiles over both sexes (mean 0.1104, sd 0.0044); hand length as ANSUR measures it: wrist
@@ -145,14 +145,14 @@ def _scanned_hand_points(
     radius = float(np.linalg.norm(rel - np.outer(rel @ a, a), axis=1).max()) + 0.01
     reach = 0.5 * length * HAND_SCALE_LIMITS[1] + 0.02
     ids = np.asarray(
-        index.tree.query_ball_point(wrist + a * reach, reach + radius, workers=KD_WORKERS),
+        index.tree.query_ball_point(wrist + a * reach, reach + radius, workers=kd_workers()),
         dtype=np.int64,
     )
     t = (index.points[ids] - wrist) @ a
     off = (index.points[ids] - wrist) - np.outer(t, a)
     keep = (t > 0) & (np.linalg.norm(off, axis=1) < radius)
     own = hand | tpl.part_mask(f"forearm_{side}")
-    _, nearest = cKDTree(X).query(index.points[ids[keep]], workers=KD_WORKERS)
+    _, nearest = cKDTree(X).query(index.points[ids[keep]], workers=kd_workers())
     keep[keep] = own[nearest]
     return ids[keep], t[keep], off[keep], length
 

@@ -181,7 +181,7 @@ from core.registration.correspondence import ScanIndex
 from core.registration.operators import vertex_normals
 from core.scan import Scan
 from core.template import Template, load_template
-from core.threads import KD_WORKERS
+from core.threads import kd_workers
 
 Verdict = Literal["good", "suspect", "failed"]
 
@@ -520,7 +520,7 @@ def hand_figures(
     if p_part16 is None:
         from scipy.spatial import cKDTree
 
-        p_part16 = np.asarray(tpl.part)[cKDTree(X).query(P, k=1, workers=KD_WORKERS)[1]]
+        p_part16 = np.asarray(tpl.part)[cKDTree(X).query(P, k=1, workers=kd_workers())[1]]
     names = tpl.part_names
     mine = (p_part16 == names.index(f"forearm_{side}")) | (p_part16 == names.index(f"hand_{side}"))
     D = P - wrist
@@ -713,7 +713,7 @@ def _triangle_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 def scan_spacing(index: ScanIndex, n: int = 2000) -> float:
     """Typical distance between neighbouring scan points (median over a subsample), metres."""
     ids = np.linspace(0, len(index.points) - 1, min(n, len(index.points))).astype(np.int64)
-    d, _ = index.tree.query(index.points[ids], k=2, workers=KD_WORKERS)
+    d, _ = index.tree.query(index.points[ids], k=2, workers=kd_workers())
     return float(np.median(d[:, 1]))
 
 
@@ -725,7 +725,7 @@ def fit_to_scan_distance(index: ScanIndex, X: np.ndarray) -> np.ndarray:
     normal and ``d_t`` the tangential distance (so sampling density does not count as error, but a
     vertex over a hole or off the body does).
     """
-    d, j = index.tree.query(X, k=1, workers=KD_WORKERS)
+    d, j = index.tree.query(X, k=1, workers=kd_workers())
     h = scan_spacing(index)
     dn = np.abs(np.einsum("nc,nc->n", X - index.points[j], index.normals[j]))
     dt = np.sqrt(np.maximum(d**2 - dn**2, 0.0))
@@ -775,7 +775,7 @@ def assess_fit(
     # scan points -> the part of their nearest fitted vertex
     from scipy.spatial import cKDTree
 
-    _, nearest = cKDTree(X).query(P, k=1, workers=KD_WORKERS)
+    _, nearest = cKDTree(X).query(P, k=1, workers=kd_workers())
     p_part = labels[nearest]
     p_part16 = np.asarray(tpl.part)[nearest]
     # fitted vertices -> the scan surface, and compatible data within the coverage distance

@@ -257,10 +257,13 @@ def test_trial_fits_run_side_by_side_and_give_the_same_body(monkeypatch):
 
 
 def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
+    import threading
+
     from core.threads import (
         FIT_THREADS_ENV,
         available_cpus,
         fit_threads,
+        kd_workers,
         map_in_threads,
         share_cpus,
     )
@@ -278,5 +281,12 @@ def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
     assert fit_threads() == 1
     monkeypatch.setenv(FIT_THREADS_ENV, "2")
     assert map_in_threads(lambda x: x * x, [3, 1, 2]) == [9, 1, 4]  # in order
+    # a KD-tree query takes the fit's threads, but one inside a trial; no pool within a trial
+    assert kd_workers() == 2
+    inner = map_in_threads(
+        lambda _: (kd_workers(), map_in_threads(lambda _: threading.get_ident(), [0, 1])), [0, 1]
+    )
+    assert [k for k, _ in inner] == [1, 1]
+    assert all(len(set(ids)) == 1 for _, ids in inner)  # each trial's inner map ran in turn
     with pytest.raises(ZeroDivisionError):
         map_in_threads(lambda x: 1 // x, [1, 0])
