@@ -53,10 +53,13 @@ FIT_THREADS_ENV = "BODYSPACE_FIT_THREADS"
 def share_cpus(processes: int | None) -> None:
     """Set :data:`FIT_THREADS_ENV` (unless it is set) for ``processes`` processes that each run
     fits at once (a Celery worker's pool, ``bench.realworld --jobs``): the CPUs shared out,
-    at least one thread each. Call before the processes start (they inherit it)."""
-    if os.environ.get(FIT_THREADS_ENV, "").strip() or not processes:
+    at least one thread each; a setting already there is checked (:func:`fit_threads`). Call
+    before the processes start (they inherit it)."""
+    if os.environ.get(FIT_THREADS_ENV, "").strip():
+        fit_threads()  # a wrong setting stops the start, not every fit
         return
-    os.environ[FIT_THREADS_ENV] = str(max(1, available_cpus() // max(1, processes)))
+    if processes:
+        os.environ[FIT_THREADS_ENV] = str(max(1, available_cpus() // max(1, processes)))
 
 
 def available_cpus() -> int:
@@ -71,12 +74,15 @@ def fit_threads() -> int:
     """Threads for a fit's independent trial fits: ``$BODYSPACE_FIT_THREADS``, else the CPUs
     this process may run on, at most 4 (a fit has a few trials at a time, up to ~12)."""
     raw = os.environ.get(FIT_THREADS_ENV, "").strip()
-    if raw:
-        try:
-            return max(1, int(raw))
-        except ValueError:
-            raise ValueError(f"{FIT_THREADS_ENV} must be a whole number, got {raw!r}") from None
-    return max(1, min(4, available_cpus()))
+    if not raw:
+        return max(1, min(4, available_cpus()))
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"{FIT_THREADS_ENV} must be a whole number of at least 1, got {raw!r}")
+    return n
 
 
 def map_in_threads(func: Callable[[T], R], items: Sequence[T]) -> list[R]:

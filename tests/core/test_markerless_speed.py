@@ -272,9 +272,12 @@ def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
     assert fit_threads() == 3
     share_cpus(8)  # set already: left as it is
     assert fit_threads() == 3
-    monkeypatch.setenv(FIT_THREADS_ENV, "two")
-    with pytest.raises(ValueError, match=FIT_THREADS_ENV):
-        fit_threads()
+    for wrong in ("two", "0", "-1"):
+        monkeypatch.setenv(FIT_THREADS_ENV, wrong)
+        with pytest.raises(ValueError, match=FIT_THREADS_ENV):
+            fit_threads()
+        with pytest.raises(ValueError, match=FIT_THREADS_ENV):  # a worker's start stops
+            share_cpus(2)
     monkeypatch.delenv(FIT_THREADS_ENV)
     assert fit_threads() == max(1, min(4, available_cpus()))
     share_cpus(available_cpus())  # a pool of one process per CPU: one thread each
