@@ -120,7 +120,6 @@ class EmbeddedRunner:
         return self._lock_fd is not None
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        share_cpus(self.settings.workers)  # each pool process's fit threads (inherited)
         return ProcessPoolExecutor(
             max_workers=max(1, self.settings.workers),
             mp_context=multiprocessing.get_context("spawn"),
@@ -144,6 +143,7 @@ class EmbeddedRunner:
         return True
 
     def start(self) -> None:
+        share_cpus(self.settings.workers)  # each pool process's fit threads (inherited)
         self._started = True
         if self._try_lead():
             self._lead()
