@@ -58,6 +58,15 @@ def result_key(tenant_id: str, fit_id: str, fmt: str) -> str:
     return f"{tenant_id}/fits/{fit_id}/{name}"
 
 
+def share_fit_threads(processes: int | None) -> None:
+    """Before a pool of ``processes`` fitting processes starts (default one per CPU): each
+    one's fit threads, the CPUs shared out (``core.threads.share_cpus``; a wrong
+    ``BODYSPACE_FIT_THREADS`` raises here, at the start)."""
+    from core.threads import available_cpus, share_cpus
+
+    share_cpus(processes or available_cpus())
+
+
 def warm_up() -> None:
     """Build the template operators once per process so the first fit is not slower."""
     from core.registration.fit import template_operators

@@ -18,7 +18,6 @@ import threading
 
 from celery import signals
 
-from core.threads import available_cpus, share_cpus
 from service import fit_job as jobs
 from service.celery_app import TASK_NAME, app, submit
 from service.settings import get_settings
@@ -121,7 +120,7 @@ def main(
 ) -> None:
     """Start a Celery worker for the configured broker (``bodyspace worker``)."""
     # each pool process's fits run their trials on the CPUs shared out (one each by default)
-    share_cpus(concurrency or available_cpus())
+    jobs.share_fit_threads(concurrency)
     argv = ["worker", f"--loglevel={loglevel}", "-Q", get_settings().queue_name]
     argv += ["--without-mingle", "--without-gossip"]  # workers share nothing but the queue
     if concurrency:

@@ -263,10 +263,12 @@ class ScanIndex:
         project: bool,
         smooth_radius: float,
         rim_tolerance: float,
-        workers: int,
+        workers: int | None = None,
     ) -> Correspondences:
-        """:meth:`closest_compatible` from the ``k`` nearest points of every vertex."""
+        """:meth:`closest_compatible` from the ``k`` nearest points of every vertex (``workers``:
+        the query's threads, default :func:`core.threads.kd_workers`)."""
         n = len(X)
+        workers = kd_workers() if workers is None else workers
         d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=workers)
         if k == 1:
             d, j = d[:, None], j[:, None]
