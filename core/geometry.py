@@ -7,14 +7,13 @@ template import these).
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from core.threads import fit_threads, kd_workers, map_in_threads
+from core.threads import kd_workers, map_in_blocks
 
 
 @dataclass
@@ -199,10 +198,6 @@ def closest_point_on_triangles(
     return out
 
 
-#: Fewest query points per thread worth a block of their own (:meth:`MeshDistance.distances`).
-PARALLEL_MIN_POINTS = 20_000
-
-
 class MeshDistance:
     """Exact distance from query points to a triangle mesh V (n, 3), F (m, 3).
 
@@ -226,17 +221,11 @@ class MeshDistance:
 
     def distances(self, P: np.ndarray, chunk: int = 200_000) -> np.ndarray:
         """Distances (q,) from points P (q, 3) to the mesh (same units as V); blocks of at most
-        ``chunk`` points, side by side on :func:`core.threads.fit_threads` threads."""
+        ``chunk`` points, side by side (:func:`core.threads.map_in_blocks`)."""
         P = np.asarray(P, dtype=np.float64)
-        q = len(P)
-        if q == 0:
+        if len(P) == 0:
             return np.empty(0)
-        blocks = max(-(-q // chunk), min(fit_threads(), q // PARALLEL_MIN_POINTS))
-        bounds = np.linspace(0, q, blocks + 1).astype(int)
-        parts = map_in_threads(
-            lambda b: self._distances(P[b[0] : b[1]]), list(itertools.pairwise(bounds))
-        )
-        return np.concatenate(parts)
+        return np.concatenate(map_in_blocks(lambda s: self._distances(P[s]), len(P), chunk))
 
     def _distances(self, P: np.ndarray) -> np.ndarray:
         _, nn = self.tree.query(P, k=self.k, workers=kd_workers())

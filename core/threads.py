@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import itertools
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -102,6 +103,23 @@ def map_in_threads(func: Callable[[T], R], items: Sequence[T]) -> list[R]:
 
     with ThreadPoolExecutor(max_workers=n, thread_name_prefix="fit") as pool:
         return list(pool.map(trial, items))
+
+
+#: Fewest rows per thread worth a block of their own (:func:`map_in_blocks`).
+BLOCK_MIN_ROWS = 20_000
+
+
+def map_in_blocks(func: Callable[[slice], R], n: int, max_rows: int | None = None) -> list[R]:
+    """``func`` of consecutive slices covering ``range(n)`` (in order) on
+    :func:`map_in_threads`: one per fit thread, none under :data:`BLOCK_MIN_ROWS` rows (one
+    slice then), none over ``max_rows``. Per-row work of a large array side by side."""
+    if n == 0:
+        return []
+    blocks = max(1, min(fit_threads(), n // BLOCK_MIN_ROWS))
+    if max_rows:
+        blocks = max(blocks, -(-n // max_rows))
+    bounds = [n * i // blocks for i in range(blocks + 1)]
+    return map_in_threads(func, [slice(a, b) for a, b in itertools.pairwise(bounds)])
 
 
 def serialised(func: Callable[P, R] | None) -> Callable[P, R] | None:

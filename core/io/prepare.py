@@ -12,8 +12,6 @@ the file, else estimated from the distance to the nearest boundary and isolation
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from typing import TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -29,9 +27,7 @@ from core.io.markers import read_markers
 from core.io.orient import orient_components
 from core.io.readers import read_mesh
 from core.scan import FrameInfo, RawMesh, Scan
-from core.threads import fit_threads, kd_workers, map_in_threads
-
-T = TypeVar("T")
+from core.threads import kd_workers, map_in_blocks
 
 K_NEIGHBOURS = 10  # PCA normals and orientation
 K_BOUNDARY = 20  # boundary test (larger: robust to random sampling)
@@ -212,16 +208,9 @@ def _radial(V: np.ndarray, slab: float = 0.05) -> np.ndarray:
     return normalize(r, fallback=(0.0, 0.0, 0.0))
 
 
-def _by_blocks(func: Callable[[np.ndarray], T], n: int) -> list[T]:
-    """``func(rows)`` of consecutive blocks of ``range(n)``, one per fit thread
-    (:func:`core.threads.map_in_threads`): the per-point work of a large cloud side by side."""
-    blocks = np.array_split(np.arange(n), max(1, min(fit_threads(), n // 20000)))
-    return map_in_threads(func, blocks)
-
-
 def _pca_normals(V: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """PCA normals (n, 3) of the k-neighbourhoods and surface variation (n,) in [0, 1/3]."""
-    parts = _by_blocks(lambda rows: _pca_normals_of(V, nbr[rows]), len(nbr))
+    parts = map_in_blocks(lambda rows: _pca_normals_of(V, nbr[rows]), len(nbr))
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
@@ -246,7 +235,7 @@ def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray
     n, k = nbr.shape
     rows = np.repeat(np.arange(n), k - 1)
     cols = nbr[:, 1:].ravel()
-    w = np.concatenate(_by_blocks(lambda r: _edge_costs(N, var, nbr[r], V, r), n), axis=None)
+    w = np.concatenate(map_in_blocks(lambda r: _edge_costs(N, var, nbr[r], V, r), n), axis=None)
     G = sparse.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     G = G.maximum(G.T)
     T = csgraph.minimum_spanning_tree(G).tocoo()
@@ -277,9 +266,9 @@ def _orient_cloud(N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray
 
 
 def _edge_costs(
-    N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray, rows: np.ndarray
+    N: np.ndarray, var: np.ndarray, nbr: np.ndarray, V: np.ndarray, rows: slice
 ) -> np.ndarray:
-    """:func:`_orient_cloud`'s edge costs (m, k - 1) from the points ``rows`` (m,) to their
+    """:func:`_orient_cloud`'s edge costs (m, k - 1) from the m points ``rows`` to their
     neighbours ``nbr`` (m, k) (the first: the point itself)."""
     # per point and neighbour: no (m·(k - 1), 3) copies of the point's own normal
     Nr, Vr = N[rows], V[rows]

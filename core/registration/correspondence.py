@@ -211,17 +211,16 @@ class ScanIndex:
         """
         k = max(1, min(k, len(self.points)))
         cos_lim = float(np.cos(np.deg2rad(max_angle_deg)))
-        workers = kd_workers()
         if project or k == 1:
             return self._match(
-                X, N, max_distance, cos_lim, k, project, smooth_radius, rim_tolerance, workers
+                X, N, max_distance, cos_lim, k, project, smooth_radius, rim_tolerance
             )
         # Without projection only the chosen point matters: where the nearest point is
         # compatible and interior it is the choice (the k-neighbour rule picks it first), so
         # one nearest-point query settles most vertices and the k query runs on the rest only
         # (identical result).
         n = len(X)
-        d1, j1 = self.tree.query(X, k=1, distance_upper_bound=max_distance, workers=workers)
+        d1, j1 = self.tree.query(X, k=1, distance_upper_bound=max_distance, workers=kd_workers())
         valid = np.isfinite(d1)
         jm = np.where(valid, j1, 0)
         dots = np.einsum("nc,nc->n", self.normals[jm], N)
@@ -236,15 +235,7 @@ class ScanIndex:
         redo = np.flatnonzero(~done)
         if len(redo):
             sub = self._match(
-                X[redo],
-                N[redo],
-                max_distance,
-                cos_lim,
-                k,
-                False,
-                smooth_radius,
-                rim_tolerance,
-                workers,
+                X[redo], N[redo], max_distance, cos_lim, k, False, smooth_radius, rim_tolerance
             )
             out.targets[redo] = sub.targets
             out.weights[redo] = sub.weights
@@ -263,13 +254,10 @@ class ScanIndex:
         project: bool,
         smooth_radius: float,
         rim_tolerance: float,
-        workers: int | None = None,
     ) -> Correspondences:
-        """:meth:`closest_compatible` from the ``k`` nearest points of every vertex (``workers``:
-        the query's threads, default :func:`core.threads.kd_workers`)."""
+        """:meth:`closest_compatible` from the ``k`` nearest points of every vertex."""
         n = len(X)
-        workers = kd_workers() if workers is None else workers
-        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=workers)
+        d, j = self.tree.query(X, k=k, distance_upper_bound=max_distance, workers=kd_workers())
         if k == 1:
             d, j = d[:, None], j[:, None]
         valid = np.isfinite(d)

@@ -257,6 +257,7 @@ def test_trial_fits_run_side_by_side_and_give_the_same_body(monkeypatch):
 
 
 def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
+    import itertools
     import threading
 
     from core.threads import (
@@ -264,6 +265,7 @@ def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
         available_cpus,
         fit_threads,
         kd_workers,
+        map_in_blocks,
         map_in_threads,
         share_cpus,
     )
@@ -291,5 +293,11 @@ def test_fit_threads_follow_the_environment_and_shared_cpus(monkeypatch):
     )
     assert [k for k, _ in inner] == [1, 1]
     assert all(len(set(ids)) == 1 for _, ids in inner)  # each trial's inner map ran in turn
+    # blocks: in order, covering every row; one per thread, none over max_rows
+    for n, max_rows, want in ((100, None, 1), (50_000, None, 2), (50_000, 10_000, 5)):
+        got = map_in_blocks(lambda s: (s.start, s.stop), n, max_rows)
+        assert len(got) == want
+        assert got[0][0] == 0 and got[-1][1] == n
+        assert all(a[1] == b[0] for a, b in itertools.pairwise(got))
     with pytest.raises(ZeroDivisionError):
         map_in_threads(lambda x: 1 // x, [1, 0])
