@@ -22,8 +22,8 @@ vertices, and without the hands, which a closed mesh turns into mittens). Result
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers]
-[--heavy | --booth | --wide | --palms | --tilted | --decimated] [--jobs 1] [--kinds K1,K2]
-[--seeds S1,S2]``.
+[--heavy | --booth | --wide | --palms | --tilted | --feetless | --decimated] [--jobs 1]
+[--kinds K1,K2] [--seeds S1,S2]``.
 """
 
 from __future__ import annotations
@@ -692,6 +692,12 @@ def main(argv: list[str] | None = None) -> int:
         "meshes, point clouds in turn) instead of the varied set",
     )
     ap.add_argument(
+        "--feetless",
+        action="store_true",
+        help="--cases scans that end 6-12 cm above the soles (raw scans, point clouds and closed "
+        "meshes in turn) instead of the varied set",
+    )
+    ap.add_argument(
         "--tilted",
         action="store_true",
         help="--cases bodies in a handheld scanner's frame, 5-45° off every file axis (raw "
@@ -743,6 +749,7 @@ def main(argv: list[str] | None = None) -> int:
         benchmark_cases,
         booth_cases,
         decimated_cases,
+        feetless_cases,
         filled_cases,
         heavy_cases,
         palm_cases,
@@ -750,10 +757,13 @@ def main(argv: list[str] | None = None) -> int:
         wide_cases,
     )
 
-    sets = args.heavy + args.booth + args.wide + args.palms + args.decimated + args.tilted
+    sets = sum(
+        (args.heavy, args.booth, args.wide, args.palms, args.decimated, args.tilted, args.feetless)
+    )
     if sets + args.filled > 1 + (args.booth and (args.decimated or args.filled)):
         ap.error(
-            "--heavy, --booth, --wide, --palms, --tilted, --filled and --decimated are different "
+            "--heavy, --booth, --wide, --palms, --tilted, --feetless, --filled and --decimated "
+            "are different "
             "sets: "
             "choose one "
             "(or --booth --decimated / --booth --filled: the booth subjects decimated / "
@@ -771,6 +781,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = palm_cases(args.cases)
     elif args.tilted:
         cases = tilted_cases(args.cases)
+    elif args.feetless:
+        cases = feetless_cases(args.cases)
     elif args.booth:
         cases = booth_cases(args.cases)
     elif args.wide:
@@ -804,6 +816,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
         f"{'-tilted' if args.tilted else ''}{'-filled' if args.filled else ''}"
+        f"{'-feetless' if args.feetless else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )

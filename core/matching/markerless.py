@@ -145,14 +145,69 @@ def feet_forward(scan: Scan, *, top: bool = False) -> np.ndarray | None:
     return d / n if n > FEET_CUE_MIN * h else None
 
 
-def candidate_alignments(scan: Scan, *, upside_down: bool = True) -> list[Similarity]:
+#: Feet check (:func:`feet_in_scan`): share of the height of the band above the scan's lowest
+#: points, the reference band (shares of the height above them), the grid cell (metres) of the
+#: bands' footprints seen from above, and the least ratio of the two footprints that is feet.
+#: From above, feet show their whole top (2 x 25 x 9 cm) where legs show rings: the feet of
+#: ``bench.realworld``'s scans read 1.24-6.4 (heavy bodies and booth meshes the least: thick
+#: calves), scans that end 6-12 cm above the soles 0.57-0.86 (``--feetless``: ankle rings over
+#: calf rings; both ankles together read as one foot's length, so the band's extent cannot tell).
+FEET_BAND, FEET_REFERENCE_BAND, FEET_CELL_M, MIN_FEET_FOOTPRINT = 0.03, (0.10, 0.13), 0.01, 1.05
+#: Share of the body's height taken as missing below a scan without feet (the ankle's height,
+#: about 5 % of stature): the search's candidates stand that much taller than the scan, hung
+#: from its head end.
+FEETLESS_MISSING = 0.05
+
+
+#: The feet parts (:func:`core.registration.quality.part_labels`).
+FEET = ("foot_L", "foot_R")
+#: The report's warning on a scan without feet (:func:`feet_in_scan`).
+FEETLESS_WARNING = (
+    "the scan ends above the soles (seen from above, its lowest part covers no more ground "
+    "than the legs over it: ankles, not feet; a scanner that missed the feet, or a floor "
+    "cropped with them): the feet are the body prior's guess, and the stature and every height "
+    "measured from the soles include that guess"
+)
+
+
+def feet_footprint_ratio(scan: Scan, *, top: bool = False) -> float:
+    """The footprint seen from above (occupied :data:`FEET_CELL_M` cells) of the scan's lowest
+    :data:`FEET_BAND` (``top``: its highest, for a body held upside down) over that of the legs'
+    band :data:`FEET_REFERENCE_BAND` up; inf when there are too few points to tell."""
+    V = np.asarray(scan.V)
+    y = -V[:, 1] if top else V[:, 1]
+    lo, hi = np.percentile(y, [0.2, 99.8])
+    h = hi - lo
+
+    def footprint(a: float, b: float) -> int:
+        P = V[(y > lo + a * h) & (y < lo + b * h)][:, [0, 2]]
+        return len(np.unique(np.floor(P / FEET_CELL_M).astype(np.int64), axis=0))
+
+    feet, legs = footprint(0.0, FEET_BAND), footprint(*FEET_REFERENCE_BAND)
+    return float("inf") if h <= 0 or min(feet, legs) < 20 else feet / legs
+
+
+def feet_in_scan(scan: Scan, *, top: bool = False) -> bool:
+    """Whether the scan's lowest band (``top``: its highest) holds feet: its
+    :func:`feet_footprint_ratio` at least :data:`MIN_FEET_FOOTPRINT`. Asked of the end the
+    search stood the body on: a head's ratio reads either way (a closed mesh's filled crown
+    1.1-1.9)."""
+    return feet_footprint_ratio(scan, top=top) >= MIN_FEET_FOOTPRINT
+
+
+def candidate_alignments(
+    scan: Scan, *, upside_down: bool = True, feetless: bool = False
+) -> list[Similarity]:
     """Template → scan similarities to try: scale from height, floor and centroid, each facing.
 
     The scan is in the canonical frame (metres, +Y up as detected by the reader; the upside-down
     candidates cover a reader's wrong guess of the up direction's sign). Where the feet show
     which way the body faces (:func:`feet_forward`), only facings whose toes point within
     :data:`FEET_CUE_ANGLE` of that way are tried: a body's front and back match a scan almost
-    equally well, the feet do not.
+    equally well, the feet do not. ``feetless``: the scan ends above the soles
+    (:func:`feet_in_scan`): the candidates are scaled 1 / (1 - :data:`FEETLESS_MISSING`) and
+    hung from the scan's end their head is at (either way up: the scan's cut end may read
+    like a head), without the feet's cue.
     """
     tpl = load_template()
     V = np.asarray(scan.V)
@@ -171,18 +226,24 @@ def candidate_alignments(scan: Scan, *, upside_down: bool = True) -> list[Simila
     flips = [np.eye(3)] + ([_rot_z(180.0)] if upside_down else [])
     toes = _template_toes()
     for fi, flip in enumerate(flips):
-        cue = feet_forward(scan, top=fi == 1)
+        feet = not feetless
+        cue = feet_forward(scan, top=fi == 1) if feet else None
+        sf = s if feet else s / (1.0 - FEETLESS_MISSING)
         for deg in facing_candidates(scan):
             R = _rot_y(deg) @ flip
             if cue is not None and (R @ toes)[[0, 2]] @ cue < np.cos(np.radians(FEET_CUE_ANGLE)):
                 continue
-            Y = s * tpl.V @ R.T
+            Y = sf * tpl.V @ R.T
             t = np.array([c_scan[0], 0.0, c_scan[2]]) - np.array(
                 [np.median(Y[:, 0]), 0.0, np.median(Y[:, 2])]
             )
-            # floor: bottom of the scan's points (top, for the upside-down candidates)
-            t[1] = (lo - Y[:, 1].min()) if fi == 0 else (hi - Y[:, 1].max())
-            out.append(Similarity(s, R, t))
+            # soles on the bottom of the scan's points (top, for the upside-down candidates);
+            # without feet the head on its other end, the soles past the scan
+            if (fi == 0) == feet:
+                t[1] = lo - Y[:, 1].min()
+            else:
+                t[1] = hi - Y[:, 1].max()
+            out.append(Similarity(sf, R, t))
     return out
 
 
@@ -453,7 +514,7 @@ def choose_alignment(
 
 
 def search_starts(
-    scan: Scan, index: ScanIndex, *, keep: int = 2
+    scan: Scan, index: ScanIndex, *, keep: int = 2, feetless: bool = False
 ) -> tuple[list[Start], list[dict[str, Any]]]:
     """Rounds 1 and 2 of :func:`choose_alignment`: every articulated start, best score first,
     and every trial's score. The ``keep`` best rigid candidates go on to round 2, those within
@@ -463,7 +524,8 @@ def search_starts(
     to round 2 with the middle arm hypothesis (the best of them with the others): from either
     template a heavy body's rigid scores read 1.5-1.6 whichever way up or round, and the best
     rigid candidate was the body upside down (closed_lowres-59/73 of
-    ``core.synth.scanner_outputs``); the articulated round tells."""
+    ``core.synth.scanner_outputs``); the articulated round tells. ``feetless``: the scan ends
+    above the soles (:func:`candidate_alignments`)."""
     tpl = load_template()
     ops = template_operators()
     F = np.asarray(tpl.F, dtype=np.int64)
@@ -502,7 +564,9 @@ def search_starts(
         return (two_way_score(index, t.X, body_ids, scan_ids), i, gi, V0, t)
 
     trials = [
-        (i, s, gi, V0) for i, s in enumerate(candidate_alignments(scan)) for gi, V0 in templates
+        (i, s, gi, V0)
+        for i, s in enumerate(candidate_alignments(scan, feetless=feetless))
+        for gi, V0 in templates
     ]
     rigid = map_in_threads(rigid_fit, trials)
     for sc, i, gi, _, t in rigid:
@@ -804,6 +868,17 @@ def fit_markerless(
     # (turned over, in place, where it stands head-down), a contender standing the other way
     # (:func:`near_tied`) gets a copy held its way
     best_down = _head_down(tied[0])
+    # a scan that ends above the soles (ankles where the best start stands, not feet): searched
+    # again held that way up, its body standing below the scan (``--feetless``: stood on the
+    # cut and scaled to the scan's height, bodies 39 mm from the truth, feet 117-190 mm)
+    feet = feet_in_scan(scan, top=best_down)
+    if not feet:
+        if best_down:
+            turn_over(scan)
+            index = ScanIndex(scan)
+        starts, scores = search_starts(scan, index, feetless=True)
+        tied = [_head_start(index, st, scores) for st in near_tied(starts, min_coverage)]
+        best_down = _head_down(tied[0])
     other = [st for st in tied if _head_down(st) != best_down]
     tied = [st for st in tied if _head_down(st) == best_down]
     alt_scan = copy.deepcopy(scan) if other else None
@@ -839,7 +914,7 @@ def fit_markerless(
             "initial_coefficients": start.coefficients,
             "limb_prior": LIMB_PRIOR,
             "bone_prior": MARKERLESS_BONE_PRIOR,
-            "floor_y": scan_floor(view),
+            "floor_y": scan_floor(view) if feet else None,
             "hand_length": True,
             "upright": UPRIGHT,
         }
@@ -848,7 +923,8 @@ def fit_markerless(
             view, {}, initial_similarity=start.similarity,
             schedule=sched if rounds == 0 else Schedule(()), retry=rounds == 0,
             callback=callback if rounds == 0 else None, prior_options=prior_options,
-            index=view_index, assess=rounds == 0, **options,
+            index=view_index, assess=rounds == 0, absent_parts=() if feet else FEET,
+            **options,
         )  # fmt: skip
 
     # the body vertices that score whole fits against the scan (:func:`two_way_score`)
@@ -986,6 +1062,8 @@ def fit_markerless(
     # correspondence 16.05 -> 15.57 mm, closed_booth-322's hands 35/24 -> 16/11 mm off, but
     # -311's 29/38 -> 46/52; without data alone 15.90, without landmarks alone 15.90 and two
     # fits failed; varied 40 9.07 -> 8.95, heavy 20 17.90 -> 17.70, raw-102's hand 95 -> 62 mm)
+    # a scan that ends above the soles: the feet are the body prior's, measured on nothing
+    # and judged on nothing (the scan's ankles are no foot's end)
     resting = ""
     if rounds:
         gaps = hand_body_gaps(res.vertices)
@@ -1019,7 +1097,8 @@ def fit_markerless(
             # the toe tips just past where the scanned feet end (the first fit's came from the
             # shape coefficients where the toes take no data: ``core.registration.foot_end``)
             toe = toe_allowance(round_index)
-            for x, foot in scanned_foot_ends(round_index, res.vertices).items():
+            ends = scanned_foot_ends(round_index, res.vertices) if feet else {}
+            for x, foot in ends.items():
                 marks[f"Toe_tip_{x}"] = toe_tip_marker(res.vertices, x, foot, toe)
         # the round's body prior from the landmarks' alignment and rest pose, and from where the
         # previous fit's ended; the latter is kept where it scores better (two-way) by more than
@@ -1049,18 +1128,21 @@ def fit_markerless(
             retries=MARKERLESS_RETRIES, prior_restart=restart, soft_markers=True,
             part_weights={f"hand_{x}": 0.0 for x in resting} or None, prior_options={
                 "limb_prior": LIMB_PRIOR, "fists": fists, "bone_prior": ROUND_BONE_PRIOR,
-                "iterations": ROUND_ITERATIONS,
-                "hand_length": True, "foot_length": True, "bone_length_prior": BONE_LENGTH_PRIOR,
+                "iterations": ROUND_ITERATIONS, "hand_length": True, "foot_length": feet,
+                "bone_length_prior": BONE_LENGTH_PRIOR,
                 "bone_length_centred": resting, "leg_length_centre": LEG_CENTRE_PRIOR,
                 "trunk_prior": TRUNK_PRIOR, "shape_prior_weight": ROUND_SHAPE_PRIOR,
                 "point_weight": ROUND_POINT_WEIGHT, "sole_data": ROUND_SOLE_DATA,
                 "upright": UPRIGHT,
                 **denser_template_rows(ROUND_SUBSAMPLE),
             },
+            absent_parts=() if feet else FEET,
             **options,
         )  # fmt: skip
     if hair is not None and hair.count:
         res.report.warnings.append(hair.warning())
+    if not feet:
+        res.report.warnings.append(FEETLESS_WARNING)
     if rounds:
         notes.append(FLAT_HAIR_NOTE)
     if resting:

@@ -398,6 +398,7 @@ def iter_fit(
     assess: bool = True,
     prior_restart: PriorRestart | None = None,
     soft_markers: bool = False,
+    absent_parts: tuple[str, ...] = (),
 ) -> Iterator[Progress | FitResult]:
     """Generator form of :func:`fit`: yields :class:`Progress` per update, then the result.
 
@@ -437,6 +438,9 @@ def iter_fit(
         marker term (the weak guard, γ) holds the landmarks where the body prior put them, not at
         the predictions. With the predictions the refinement pulled the first shape-space fit's
         errors back in (``bench.realworld`` closed-vs-raw twins, 8 bodies: 4.13 -> 4.04 mm).
+    absent_parts : quality parts the scan does not hold (``core.matching.markerless.
+        feet_in_scan``: a scan that ends above the soles): the quality check calls them suspect
+        as the body prior's guess, not failed for their missing data, and no retry is run for them.
     """
     t_start = time.perf_counter()
     if schedule is None:
@@ -544,7 +548,7 @@ def iter_fit(
     yield final_report(
         scan, index, ops, full, frame, body, state, report,
         max_distance=max_distance, max_angle_deg=max_angle_deg,
-        shape_prior=shape_prior, t_start=t_start, assess=assess,
+        shape_prior=shape_prior, t_start=t_start, assess=assess, absent_parts=absent_parts,
     )  # fmt: skip
 
 
@@ -956,10 +960,12 @@ def final_report(
     shape_prior: bool,
     t_start: float,
     assess: bool = True,
+    absent_parts: tuple[str, ...] = (),
 ) -> FitResult:
     """Final report: the fitted body in metres, its data weights and no-data fraction, the
-    scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``);
-    without ``assess`` only the body and its data weights."""
+    scan→fit distance (mean, p95) and the per-part quality check (``core.registration.quality``;
+    ``absent_parts``: parts the scan does not hold); without ``assess`` only the body and its
+    data weights."""
     F_full = np.asarray(ops.template.F, dtype=np.int64)
     if state.level is None or state.x is None:  # no refinement stage: the body prior's result
         A = np.broadcast_to(frame.A0, (full.n, 3, 4)).copy()
@@ -1009,6 +1015,7 @@ def final_report(
         unseen=unseen,
         mittens=state.mitten_sides,
         mitten_m=index.closing_radius_m,
+        absent=absent_parts,
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
@@ -1084,6 +1091,7 @@ def fit(
     retries: tuple[tuple[str, dict[str, Any]], ...] = RETRIES,
     prior_restart: PriorRestart | None = None,
     soft_markers: bool = False,
+    absent_parts: tuple[str, ...] = (),
 ) -> FitResult:
     """Fit the template to ``scan`` guided by ``markers``; the options are :func:`iter_fit`'s.
 
@@ -1112,6 +1120,7 @@ def fit(
         "initial_similarity": initial_similarity, "prior_options": prior_options,
         "marker_trust": marker_trust, "part_weights": part_weights, "assess": assess,
         "prior_restart": prior_restart, "soft_markers": soft_markers,
+        "absent_parts": absent_parts,
     }  # fmt: skip
     options["index"] = scan_index(scan, index, confidence_full_at)  # shared by the retries
     res = _run(scan, markers, callback, options)

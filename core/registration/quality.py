@@ -245,6 +245,8 @@ HAND_FIGURES = (
 #: with the thigh leaves data the template hand cannot explain) is :attr:`FitQuality.unresolved`:
 #: the scan cannot place it, another fit would not either
 AMBIGUOUS_FIGURES = ("hand_body_gap_m", "scan_to_fit_p95_m")
+#: figures read off the part's scan data (not judged on a part the scan does not hold)
+DATA_FIGURES = ("scan_to_fit_p95_m", "fit_to_scan_p95_m", "coverage", "displacement_m")
 #: figures of one part only (NaN on the others)
 PART_FIGURES = {
     **dict.fromkeys(HAND_FIGURES, ("hand_L", "hand_R")),
@@ -744,6 +746,7 @@ def assess_fit(
     unseen: np.ndarray | None = None,
     mittens: str = "",
     mitten_m: float = 0.0,
+    absent: tuple[str, ...] = (),
 ) -> FitQuality:
     """Judge the fitted body ``X`` (13380, 3), metres, against ``scan`` (same frame).
 
@@ -757,6 +760,9 @@ def assess_fit(
     fused mitten (:func:`core.registration.closed_concavities.mitten_hands`), whose
     ``scan_to_fit_p95_m`` limits rise by ``mitten_m`` (metres: the mesh's closing radius, as far
     as its webbing between thumb and fingers reaches from the skin).
+    ``absent`` (part names): parts the scan does not hold (a scan that ends above the soles):
+    each is ``suspect`` as the body prior's guess and unresolved (no other fit can place it),
+    ``failed`` only for its shape and place (figures not read off its data).
     Returns a :class:`FitQuality` (thresholds: module docstring).
     """
     tpl = template or load_template()
@@ -843,8 +849,11 @@ def assess_fit(
             figures["feet_apart_m"] = apart
         elif name == "torso":
             figures["sternum_proportion"] = sternum_proportion(X, tpl)
+        judged = figures  # a part the scan does not hold: judged on its shape and place only
+        if name in absent:
+            judged = {**figures, **dict.fromkeys(DATA_FIGURES, float("nan"))}
         mitten = name.startswith("hand_") and name[-1] in mittens
-        pv, pr, flagged = _judge(name, figures, {"scan_to_fit_p95_m": mitten_m} if mitten else None)
+        pv, pr, flagged = _judge(name, judged, {"scan_to_fit_p95_m": mitten_m} if mitten else None)
         # suspect only where the scan cannot tell (checked again below: lost or without data)
         scan_cannot_tell = AMBIGUOUS_FIGURES[0] in flagged and flagged <= set(AMBIGUOUS_FIGURES)
         f = EXTREMITY_FACTOR if name in EXTREMITIES else 1.0
@@ -853,14 +862,22 @@ def assess_fit(
             or figures["coverage"] < THRESHOLDS["coverage"].suspect / f
             or figures["fit_to_scan_p95_m"] > THRESHOLDS["fit_to_scan_p95_m"].suspect * f
         )
-        if s2f_p95 > LOST_SCAN_TO_FIT_M * f and off and pv != "failed":
+        if name in absent:  # the body prior's guess, said so; failed only for its shape
+            pr.insert(
+                0,
+                f"{name}: not in the scan (it ends above the soles); its shape and place are "
+                "the body prior's guess",
+            )
+            pv = "failed" if pv == "failed" else "suspect"
+            scan_cannot_tell = pv == "suspect"
+        elif s2f_p95 > LOST_SCAN_TO_FIT_M * f and off and pv != "failed":
             pv = "failed"
             pr.insert(
                 0,
                 f"{name}: lost (scan data around it unexplained, its surface "
                 f"{ratio[i] * 100:.0f} % of its proportion)",
             )
-        if n_pts < MIN_POINTS:  # data for a whole part missing: the part may be lost
+        if n_pts < MIN_POINTS and name not in absent:  # data for a whole part missing: lost?
             pv = "failed" if figures["coverage"] < THRESHOLDS["coverage"].failed else pv
             scan_cannot_tell = False
             # the hand-shape hints presuppose a scanned hand: with none, they mislead

@@ -51,6 +51,10 @@ Decisions
   ``inward``: the faces (and normals) of both arms are wound inward. ``clutter``: 2–5 stray
   blobs (spheres r 2–6 cm, 0.3–1.2 m from the body) and a ring of floor points/triangles around
   the feet (r 0.25–0.6 m).
+- **Scans without feet** (``raw_feetless`` / ``cloud_feetless`` / ``closed_feetless``,
+  :func:`feetless_cases`): scanners whose views miss the feet, or a floor cropped away with them,
+  deliver a body that ends at the ankles: everything below a drawn 6-12 cm over the soles is
+  removed (points, and faces with them; a closed mesh is left open there), random frame.
 - **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
   uniformly by area on the true body surface with 0.5 mm noise and the soles removed
   (``dense``).
@@ -126,6 +130,10 @@ KINDS = {
     "a smooth membrane: armpits, crotch, crown, soles), decimated to 10-15 k vertices, mm, +Y up",
     "closed_booth_filled": "closed mesh hole-filled from a booth subject's raw scan (its hair, "
     "and arms touching the body, fused to it), decimated to 10-15 k vertices, mm, +Y up",
+    "raw_feetless": "raw multi-view range scan that ends 6-12 cm above the soles (the feet "
+    "missed or cropped with the floor)",
+    "cloud_feetless": "point cloud without normals that ends 6-12 cm above the soles",
+    "closed_feetless": "closed mesh (5-7 mm grid) that ends 6-12 cm above the soles, open there",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -141,6 +149,14 @@ PALM_KINDS = {"raw_palms": "raw", "closed_palms": "closed_lowres"}
 TILTED_KINDS = {"raw_tilted": "raw", "cloud_tilted": "cloud", "closed_tilted": "closed"}
 #: Tilts (degrees) of :data:`TILTED_KINDS`.
 TILT_RANGE_DEG = (5.0, 45.0)
+#: The feetless kinds (scans that end above the soles: a scanner whose views miss the feet, or
+#: a floor cropped away with them; everything below :data:`FEETLESS_CUT_RANGE_M` over the soles
+#: removed, faces with it) and the kind each is delivered as; only in :func:`feetless_cases`
+#: (``bench.realworld --feetless``).
+FEETLESS_KINDS = {"raw_feetless": "raw", "cloud_feetless": "cloud", "closed_feetless": "closed"}
+#: Heights (metres above the soles) below which a feetless kind holds nothing: the ankles
+#: (lateral malleolus 6-8 cm up) to the lower shins.
+FEETLESS_CUT_RANGE_M = (0.06, 0.12)
 
 #: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
 #: fixed, so that a kind added later leaves every earlier case as it was.
@@ -148,7 +164,8 @@ _SEED_ORDER = (
     "closed_hair", "closed_lowres", "closed_plate", "closed_touching", "cloud", "dense", "raw",
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
-    "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled",
+    "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled", "raw_feetless",
+    "cloud_feetless", "closed_feetless",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -874,7 +891,8 @@ def make_case(
         forearm_twist=twist,
     )  # fmt: skip
     kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
-    kind = WIDE_KINDS.get(kind, PALM_KINDS.get(kind, TILTED_KINDS.get(kind, kind)))
+    for delivered in (WIDE_KINDS, PALM_KINDS, TILTED_KINDS, FEETLESS_KINDS):
+        kind = delivered.get(kind, kind)
     rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
     normals = None
@@ -938,6 +956,14 @@ def make_case(
             normals = vertex_normals(X, F)
         elif kind == "cloud":
             F, normals = None, None
+    if kind_drawn in FEETLESS_KINDS:  # nothing below the cut: points, and faces with them
+        cut = float(np.random.default_rng([seed, 109]).uniform(*FEETLESS_CUT_RANGE_M))
+        keep = X[:, 1] > P[:, 1].min() + cut
+        if F is not None:
+            F = _kept_faces(F, keep)
+        X = X[keep]
+        normals = None if normals is None else normals[keep]
+        out["cut_m"] = cut
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
                 "closed_filled", "closed_booth_filled"):  # fmt: skip
@@ -974,6 +1000,13 @@ def make_case(
     )  # fmt: skip
 
 
+def _kept_faces(F: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The faces F (m, 3) whose three vertices are all kept (``keep`` (n,) bool), renumbered
+    over the kept vertices."""
+    new = np.cumsum(keep) - 1
+    return new[F[keep[F].all(axis=1)]]
+
+
 def _describe(kind, body, pose, out, units, up, n, F) -> str:
     what = KINDS[kind].split(",")[0].split(" (")[0]
     bits = [f"off-model {body.sex}, BMI {body.params['bmi']:.0f}, "
@@ -993,6 +1026,8 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
     bits.append(f"feet {pose['feet_gap_m'] * 100:.0f} cm apart")
     if "tilt_deg" in out:
         bits.append(f"tilted {out['tilt_deg']:.0f}°")
+    if "cut_m" in out:
+        bits.append(f"nothing below {out['cut_m'] * 100:.0f} cm")
     bits.append(f"{n:,} {'vertices' if F is not None else 'points'}, {units}, up {up}")
     return ", ".join(bits)
 
@@ -1003,7 +1038,8 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     closed-vs-raw agreement check)."""
     apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled",
              "closed_booth_filled")  # fmt: skip
-    base = [k for k in sorted(KINDS) if k not in (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS)]
+    sets = (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS, *FEETLESS_KINDS)
+    base = [k for k in sorted(KINDS) if k not in sets]
     out: list[tuple[int, str]] = []
     seed = i = 0
     while len(out) < n:
@@ -1069,6 +1105,14 @@ def tilted_cases(n: int = 24, start: int = 800) -> list[tuple[int, str]]:
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
 
+def feetless_cases(n: int = 12, start: int = 1000) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of scans that end above the soles (:data:`FEETLESS_KINDS`),
+    seeds ``start`` on (clear of the other sets), raw scans, point clouds and closed meshes in
+    turn."""
+    kinds = list(FEETLESS_KINDS)
+    return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
+
+
 def filled_cases(n: int = 16, start: int = 900) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
     ``closed_filled`` mesh (booth software's watertight mesh of its own raw scan, the holes
@@ -1092,6 +1136,7 @@ def decimated_cases(n: int = 16, start: int = 700) -> list[tuple[int, str]]:
 __all__ = [
     "ALL_HAIR_STYLES",
     "EXTRA_HAIR_STYLES",
+    "FEETLESS_KINDS",
     "HAIR_STYLES",
     "KINDS",
     "PALM_KINDS",
@@ -1105,6 +1150,7 @@ __all__ = [
     "clutter",
     "decimate",
     "decimated_cases",
+    "feetless_cases",
     "file_transform",
     "filled_cases",
     "hair_box",

@@ -20,6 +20,8 @@ from core.synth.realworld import (
     posture,
 )
 from core.synth.scanner_outputs import (
+    FEETLESS_CUT_RANGE_M,
+    FEETLESS_KINDS,
     KINDS,
     PALM_KINDS,
     SUBSET_33,
@@ -31,6 +33,7 @@ from core.synth.scanner_outputs import (
     booth_cases,
     closed_mesh,
     decimated_cases,
+    feetless_cases,
     heavy_cases,
     make_case,
     palm_cases,
@@ -310,7 +313,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
-        *TILTED_KINDS, "closed_filled", "closed_booth_filled",
+        *TILTED_KINDS, "closed_filled", "closed_booth_filled", *FEETLESS_KINDS,
     }  # fmt: skip
 
 
@@ -588,3 +591,26 @@ def test_booth_subjects_hole_filled_keep_their_hair_and_touching_arms():
     assert np.median(d) < 0.0015, np.median(d)
     bun = np.linalg.norm(X - np.asarray(hair["bun"]["centre"]), axis=1) < hair["bun"]["radius"]
     assert bun.sum() > 20 and np.percentile(d[bun], 90) > 0.015, (bun.sum(), d[bun].max())
+
+
+def test_feetless_scans_end_above_the_soles():
+    """raw_feetless / cloud_feetless / closed_feetless (seeds 1000 on, in turn): nothing below
+    the drawn 6-12 cm over the truth's soles (and something just above it), the faces kept
+    renumbered over the kept points; the seed's body and posture, as every kind of it."""
+    cases = feetless_cases(6)
+    assert [k for _, k in cases] == list(FEETLESS_KINDS) * 2
+    raw = make_case(1000, "raw")
+    for seed, kind in cases[:3]:
+        c = make_case(seed, kind)
+        A = c.to_file
+        inv = np.linalg.inv(A[:3, :3])
+        V, T = (c.V - A[:3, 3]) @ inv.T, (c.truth - A[:3, 3]) @ inv.T
+        cut = c.params["output"]["cut_m"]
+        assert FEETLESS_CUT_RANGE_M[0] <= cut <= FEETLESS_CUT_RANGE_M[1]
+        assert V[:, 1].min() > T[:, 1].min() + cut - 1e-9
+        assert V[:, 1].min() < T[:, 1].min() + cut + 0.01  # cut there, not higher
+        if c.F is not None:
+            assert c.F.min() >= 0 and c.F.max() < len(c.V)
+        assert (c.F is None) == (kind == "cloud_feetless")
+        if seed == 1000:  # the seed's body (sex, BMI, stature), as every kind of it
+            assert c.description.split(", ")[:3] == raw.description.split(", ")[:3]
