@@ -1062,8 +1062,6 @@ def fit_markerless(
     # correspondence 16.05 -> 15.57 mm, closed_booth-322's hands 35/24 -> 16/11 mm off, but
     # -311's 29/38 -> 46/52; without data alone 15.90, without landmarks alone 15.90 and two
     # fits failed; varied 40 9.07 -> 8.95, heavy 20 17.90 -> 17.70, raw-102's hand 95 -> 62 mm)
-    # a scan that ends above the soles: the feet are the body prior's, measured on nothing
-    # and judged on nothing (the scan's ankles are no foot's end)
     resting = ""
     if rounds:
         gaps = hand_body_gaps(res.vertices)
@@ -1097,6 +1095,7 @@ def fit_markerless(
             # the toe tips just past where the scanned feet end (the first fit's came from the
             # shape coefficients where the toes take no data: ``core.registration.foot_end``)
             toe = toe_allowance(round_index)
+            # (none on a scan that ends above the soles: its ankles are no foot's end)
             ends = scanned_foot_ends(round_index, res.vertices) if feet else {}
             for x, foot in ends.items():
                 marks[f"Toe_tip_{x}"] = toe_tip_marker(res.vertices, x, foot, toe)
