@@ -108,6 +108,12 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.bincount(np.asarray(F).ravel(), np.repeat(areas / 3.0, 3), minlength=len(V))
 
 
+def kept_faces(F: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The faces F (m, 3) whose three vertices are all kept (``keep`` (n,) bool), renumbered
+    over the kept vertices (``V[keep]``)."""
+    return (np.cumsum(keep) - 1)[F[keep[F].all(axis=1)]]
+
+
 def row_norms(X: np.ndarray) -> np.ndarray:
     """Euclidean lengths (k,) of the rows of X (k, d) (``np.linalg.norm(X, axis=1)`` at about
     half its CPU on large arrays)."""

@@ -42,6 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from core.geometry import kept_faces
 from core.scan import RawMesh
 
 FLOOR_BAND = 0.03  # m; a floor's top lies at most this far from an end of the vertical
@@ -264,7 +265,7 @@ def remove_non_body(m: RawMesh) -> tuple[RawMesh, NonBody]:
             nb.stray |= orphan & by_stray
             nb.floor |= orphan & ~by_stray
             keep = nb.keep = ~(nb.floor | nb.stray)
-        F = (np.cumsum(keep) - 1)[F]
+        F = kept_faces(F, keep)  # (orphans have no faces: only the renumbering)
     sub = RawMesh(
         V=m.V[keep],
         F=F,

@@ -50,7 +50,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from core.geometry import MeshDistance
+from core.geometry import MeshDistance, kept_faces
 from core.registration.operators import vertex_normals
 from core.scan import Scan
 from core.template import load_template
@@ -224,10 +224,7 @@ def without(scan: Scan, drop: np.ndarray) -> Scan:
     """The scan without the points ``drop`` ((n,) bool) and their triangles; ``removed`` counts
     them as ``hair_points`` (the fit's report then says its figures are over the kept points)."""
     keep = ~drop
-    F = scan.F
-    if F is not None:
-        new = np.cumsum(keep) - 1
-        F = new[F[keep[F].all(axis=1)]]
+    F = None if scan.F is None else kept_faces(scan.F, keep)
     removed = dict(scan.removed)
     removed["hair_points"] = removed.get("hair_points", 0) + int(drop.sum())
     return replace(

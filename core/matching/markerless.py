@@ -225,10 +225,9 @@ def candidate_alignments(
     out = []
     flips = [np.eye(3)] + ([_rot_z(180.0)] if upside_down else [])
     toes = _template_toes()
+    sf = s / (1.0 - FEETLESS_MISSING) if feetless else s
     for fi, flip in enumerate(flips):
-        feet = not feetless
-        cue = feet_forward(scan, top=fi == 1) if feet else None
-        sf = s if feet else s / (1.0 - FEETLESS_MISSING)
+        cue = None if feetless else feet_forward(scan, top=fi == 1)
         for deg in facing_candidates(scan):
             R = _rot_y(deg) @ flip
             if cue is not None and (R @ toes)[[0, 2]] @ cue < np.cos(np.radians(FEET_CUE_ANGLE)):
@@ -239,7 +238,7 @@ def candidate_alignments(
             )
             # soles on the bottom of the scan's points (top, for the upside-down candidates);
             # without feet the head on its other end, the soles past the scan
-            if (fi == 0) == feet:
+            if (fi == 0) != feetless:
                 t[1] = lo - Y[:, 1].min()
             else:
                 t[1] = hi - Y[:, 1].max()

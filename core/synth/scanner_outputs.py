@@ -77,7 +77,7 @@ from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
 from scipy.spatial.transform import Rotation
 
-from core.geometry import MeshDistance
+from core.geometry import MeshDistance, kept_faces
 from core.io.frame import rotation_for_up
 from core.synth.realworld import (
     PALM_TWIST_RANGE,
@@ -960,7 +960,7 @@ def make_case(
         cut = float(np.random.default_rng([seed, 109]).uniform(*FEETLESS_CUT_RANGE_M))
         keep = X[:, 1] > P[:, 1].min() + cut
         if F is not None:
-            F = _kept_faces(F, keep)
+            F = kept_faces(F, keep)
         X = X[keep]
         normals = None if normals is None else normals[keep]
         out["cut_m"] = cut
@@ -998,13 +998,6 @@ def make_case(
         f"{'-palms' if any(twist) else ''}",
         params={"sex": body.sex, "body": body.params, "posture": pose, "output": out},
     )  # fmt: skip
-
-
-def _kept_faces(F: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """The faces F (m, 3) whose three vertices are all kept (``keep`` (n,) bool), renumbered
-    over the kept vertices."""
-    new = np.cumsum(keep) - 1
-    return new[F[keep[F].all(axis=1)]]
 
 
 def _describe(kind, body, pose, out, units, up, n, F) -> str:
