@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from core.geometry import kept_faces
 
 
 @dataclass
@@ -155,3 +157,25 @@ class TexturedSurface:
     V: np.ndarray
     F: np.ndarray
     texture: ScanTexture
+
+
+def scan_without(scan: Scan, drop: np.ndarray, what: str, *, rim: bool = False) -> Scan:
+    """The scan without the points ``drop`` ((n,) bool) and their triangles; ``removed[what]``
+    counts them (the fit's report then says its figures are over the kept points). ``rim``:
+    the kept points of a triangle that lost a corner become hole boundary (no data weight, as a
+    scanner's hole rim)."""
+    keep = ~drop
+    boundary = scan.boundary.copy()
+    if rim and scan.F is not None:
+        cut = drop[scan.F].any(axis=1)
+        edge = np.zeros(len(keep), bool)
+        edge[scan.F[cut].ravel()] = True
+        edge &= keep
+        boundary |= edge
+    removed = dict(scan.removed)
+    removed[what] = removed.get(what, 0) + int(drop.sum())
+    return replace(
+        scan, V=scan.V[keep], F=None if scan.F is None else kept_faces(scan.F, keep),
+        normals=scan.normals[keep], confidence=scan.confidence[keep], boundary=boundary[keep],
+        removed=removed, colors=None if scan.colors is None else scan.colors[keep],
+    )  # fmt: skip

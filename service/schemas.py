@@ -374,7 +374,8 @@ class FitOut(BaseModel):
     removed: dict[str, int] = Field(
         default_factory=dict,
         description="scan points removed as not the body before fitting (floor_points, "
-        "stray_points; hair_points: hair on the head a markerless fit left out); scan->fit "
+        "stray_points; hair_points: hair on the head a markerless fit left out; "
+        "cut_cap_points: the surface closing a scan cut above the soles); scan->fit "
         "figures and the quality check are over the kept points",
     )
 

@@ -42,7 +42,7 @@ them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
@@ -50,9 +50,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from core.geometry import MeshDistance, kept_faces
+from core.geometry import MeshDistance
 from core.registration.operators import vertex_normals
-from core.scan import Scan
+from core.scan import Scan, scan_without
 from core.template import load_template
 from core.threads import kd_workers
 
@@ -217,18 +217,4 @@ def find_hair(scan: Scan, body: np.ndarray) -> Hair:
     hair, max_out = label_hair(np.asarray(scan.V, dtype=np.float64), body, F, scan.F)
     if not hair.any():
         return Hair(hair, 0.0, scan)
-    return Hair(hair, max_out, without(scan, hair))
-
-
-def without(scan: Scan, drop: np.ndarray) -> Scan:
-    """The scan without the points ``drop`` ((n,) bool) and their triangles; ``removed`` counts
-    them as ``hair_points`` (the fit's report then says its figures are over the kept points)."""
-    keep = ~drop
-    F = None if scan.F is None else kept_faces(scan.F, keep)
-    removed = dict(scan.removed)
-    removed["hair_points"] = removed.get("hair_points", 0) + int(drop.sum())
-    return replace(
-        scan, V=scan.V[keep], F=F, normals=scan.normals[keep], confidence=scan.confidence[keep],
-        boundary=scan.boundary[keep], removed=removed,
-        colors=None if scan.colors is None else scan.colors[keep],
-    )  # fmt: skip
+    return Hair(hair, max_out, scan_without(scan, hair, "hair_points"))

@@ -63,7 +63,7 @@ from core.registration.shape_prior import (
     fit_body_prior,
 )
 from core.rig import axis_angle, joint_positions, load_rig
-from core.scan import Scan
+from core.scan import Scan, scan_without
 from core.template import load_template
 from core.threads import kd_workers, map_in_threads, serialised, single_blas_thread
 
@@ -123,15 +123,10 @@ FOOT_BAND, SHIN_BAND, FEET_CUE_MIN = 0.035, (0.10, 0.16), 0.012
 FEET_CUE_ANGLE = 75.0
 
 
-def feet_forward(scan: Scan, *, top: bool = False) -> np.ndarray | None:
-    """Which way the feet point: unit (x, z) of the horizontal offset from the shins' centre to
-    the feet's, or None when the offset is too small to tell (< :data:`FEET_CUE_MIN` × height).
-
-    Feet stick out in front of the ankles (toes 15–20 cm ahead, heel 5 cm behind), so a band
-    just above the soles has its centre 4–10 cm in front of the shins' (measured on the 38
-    scans of ``benchmark_cases(40)``: 40–102 mm, every one pointing the body's way). ``top``:
-    the feet are at the top (an upside-down hypothesis).
-    """
+def _feet_offset(scan: Scan, *, top: bool = False) -> tuple[np.ndarray, float] | None:
+    """The horizontal offset (x, z) (metres) from the shin band's centre to the foot band's
+    (:data:`SHIN_BAND`, :data:`FOOT_BAND`) and the scan's height (metres); None when a band has
+    too few points. ``top``: the feet are at the top (an upside-down hypothesis)."""
     V = np.asarray(scan.V)
     y = -V[:, 1] if top else V[:, 1]
     lo, hi = np.percentile(y, [0.2, 99.8])
@@ -140,9 +135,27 @@ def feet_forward(scan: Scan, *, top: bool = False) -> np.ndarray | None:
     shin = V[(y > lo + SHIN_BAND[0] * h) & (y < lo + SHIN_BAND[1] * h)]
     if len(foot) < 20 or len(shin) < 20:
         return None
-    d = foot[:, [0, 2]].mean(axis=0) - shin[:, [0, 2]].mean(axis=0)
+    return foot[:, [0, 2]].mean(axis=0) - shin[:, [0, 2]].mean(axis=0), float(h)
+
+
+def feet_forward(
+    scan: Scan, *, top: bool = False, min_share: float = FEET_CUE_MIN
+) -> np.ndarray | None:
+    """Which way the feet point: unit (x, z) of the horizontal offset from the shins' centre to
+    the feet's, or None when the offset is too small to tell (< ``min_share`` × height).
+
+    Feet stick out in front of the ankles (toes 15–20 cm ahead, heel 5 cm behind), so a band
+    just above the soles has its centre 4–10 cm in front of the shins' (measured on the 38
+    scans of ``benchmark_cases(40)``: 40–102 mm, every one pointing the body's way). ``top``:
+    the feet are at the top (an upside-down hypothesis). A scan that ends above the soles
+    points the same way (:data:`FEETLESS_CUE_MIN`): its ankles stand in front of its calves.
+    """
+    off = _feet_offset(scan, top=top)
+    if off is None:
+        return None
+    d, h = off
     n = float(np.linalg.norm(d))
-    return d / n if n > FEET_CUE_MIN * h else None
+    return d / n if n > min_share * h else None
 
 
 #: Feet check (:func:`feet_in_scan`): share of the height of the band above the scan's lowest
@@ -153,11 +166,32 @@ def feet_forward(scan: Scan, *, top: bool = False) -> np.ndarray | None:
 #: calves), scans that end 6-12 cm above the soles 0.57-0.86 (``--feetless``: ankle rings over
 #: calf rings; both ankles together read as one foot's length, so the band's extent cannot tell).
 FEET_BAND, FEET_REFERENCE_BAND, FEET_CELL_M, MIN_FEET_FOOTPRINT = 0.03, (0.10, 0.13), 0.01, 1.05
+#: ... and the least offset of the foot band's centre in front of the shins' (:func:`feet_forward`;
+#: share of the height) that is feet: a cut closed by scanner software (``capped_feetless``)
+#: shows a filled disc per ankle, whose footprint reads as feet (1.01-1.89), but it lies under
+#: the shins, not ahead of them: 0.003-0.010 on ``--feetless``'s capped scans, feet 0.024-0.057
+#: on 143 scans (the varied set without its dense clouds, booth 40, heavy 20, filled 16,
+#: tilted 12, read as the fit reads them).
+MIN_FEET_AHEAD = 0.017
 #: Share of the body's height taken as missing below a scan without feet (the ankle's height,
 #: about 5 % of stature): the search's candidates stand that much taller than the scan, hung
 #: from its head end.
 FEETLESS_MISSING = 0.05
+#: The feet cue's least offset (share of the height, :func:`feet_forward`) on a scan without
+#: feet: the calf bulges behind the shin, so the band over the cut (ankles, lower shins) has its
+#: centre in front of the calves' band: 3-17 mm on ``--feetless``'s 16 scans (0.002-0.010 of
+#: the height), within 44° of the body's forward in every one (cos 0.72-1.00). Without it the
+#: search took a BMI 52 body backwards (capped_feetless-1007 and its cloud: 404 and 417 mm off).
+FEETLESS_CUE_MIN = 0.001
 
+
+#: A scan that ends above the soles may come closed there (scanner software caps the cut, flat
+#: or domed): its points within :data:`CUT_CAP_BAND_M` of the lowest whose surface lies within
+#: :data:`CUT_CAP_ANGLE` of horizontal (either sign: estimated or inward normals) are the cap, not
+#: the body, and leave the fit (:func:`cut_caps`); the legs' walls just above a cut are near
+#: vertical. Left in, the caps pulled the guessed feet onto them: ``closed_feetless`` cases
+#: 1002/1005/1008/1011 capped flat fitted 27-52 mm from the truth (open: 7-11), feet 107-158 mm.
+CUT_CAP_BAND_M, CUT_CAP_ANGLE, MIN_CAP_POINTS = 0.03, 45.0, 20
 
 #: The feet parts (:func:`core.registration.quality.part_labels`).
 FEET = ("foot_L", "foot_R")
@@ -189,10 +223,22 @@ def feet_footprint_ratio(scan: Scan, *, top: bool = False) -> float:
 
 def feet_in_scan(scan: Scan, *, top: bool = False) -> bool:
     """Whether the scan's lowest band (``top``: its highest) holds feet: its
-    :func:`feet_footprint_ratio` at least :data:`MIN_FEET_FOOTPRINT`. Asked of the end the
-    search stood the body on: a head's ratio reads either way (a closed mesh's filled crown
-    1.1-1.9)."""
-    return feet_footprint_ratio(scan, top=top) >= MIN_FEET_FOOTPRINT
+    :func:`feet_footprint_ratio` at least :data:`MIN_FEET_FOOTPRINT`, its centre at least
+    :data:`MIN_FEET_AHEAD` × height in front of the shins'. Asked of the end the search stood
+    the body on: a head's ratio reads either way (a closed mesh's filled crown 1.1-1.9)."""
+    if feet_footprint_ratio(scan, top=top) < MIN_FEET_FOOTPRINT:
+        return False
+    off = _feet_offset(scan, top=top)
+    return off is None or float(np.linalg.norm(off[0])) >= MIN_FEET_AHEAD * off[1]
+
+
+def cut_caps(scan: Scan) -> np.ndarray:
+    """(n,) bool: the scan's points that close a cut above the soles (:data:`CUT_CAP_BAND_M`,
+    :data:`CUT_CAP_ANGLE`); asked only of a scan upright (+Y) that :func:`feet_in_scan` says
+    ends above them."""
+    V, N = np.asarray(scan.V), np.asarray(scan.normals)
+    lo = np.percentile(V[:, 1], 0.2)
+    return (V[:, 1] < lo + CUT_CAP_BAND_M) & (np.abs(N[:, 1]) > np.cos(np.radians(CUT_CAP_ANGLE)))
 
 
 def candidate_alignments(
@@ -207,7 +253,7 @@ def candidate_alignments(
     equally well, the feet do not. ``feetless``: the scan ends above the soles
     (:func:`feet_in_scan`): the candidates are scaled 1 / (1 - :data:`FEETLESS_MISSING`) and
     hung from the scan's end their head is at (either way up: the scan's cut end may read
-    like a head), without the feet's cue.
+    like a head), the cue read off the ankles and calves (:data:`FEETLESS_CUE_MIN`).
     """
     tpl = load_template()
     V = np.asarray(scan.V)
@@ -227,7 +273,9 @@ def candidate_alignments(
     toes = _template_toes()
     sf = s / (1.0 - FEETLESS_MISSING) if feetless else s
     for fi, flip in enumerate(flips):
-        cue = None if feetless else feet_forward(scan, top=fi == 1)
+        cue = feet_forward(
+            scan, top=fi == 1, min_share=FEETLESS_CUE_MIN if feetless else FEET_CUE_MIN
+        )
         for deg in facing_candidates(scan):
             R = _rot_y(deg) @ flip
             if cue is not None and (R @ toes)[[0, 2]] @ cue < np.cos(np.radians(FEET_CUE_ANGLE)):
@@ -871,10 +919,21 @@ def fit_markerless(
     # again held that way up, its body standing below the scan (``--feetless``: stood on the
     # cut and scaled to the scan's height, bodies 39 mm from the truth, feet 117-190 mm)
     feet = feet_in_scan(scan, top=best_down)
+    cap_note = ""
     if not feet:
         if best_down:
             turn_over(scan)
             index = ScanIndex(scan)
+        caps = cut_caps(scan)
+        if caps.sum() >= MIN_CAP_POINTS:  # the caller's scan, in place (as turned over)
+            kept = scan_without(scan, caps, "cut_cap_points", rim=True)
+            for f in fields(scan):
+                setattr(scan, f.name, getattr(kept, f.name))
+            index = ScanIndex(scan)
+            cap_note = (
+                f"{int(caps.sum())} points closing the scan's cut above the soles left out "
+                "(a cap, not the body)"
+            )
         starts, scores = search_starts(scan, index, feetless=True)
         tied = [_head_start(index, st, scores) for st in near_tied(starts, min_coverage)]
         best_down = _head_down(tied[0])
@@ -1141,6 +1200,8 @@ def fit_markerless(
         res.report.warnings.append(hair.warning())
     if not feet:
         res.report.warnings.append(FEETLESS_WARNING)
+    if cap_note:
+        (notes if rounds else res.report.notes).append(cap_note)
     if rounds:
         notes.append(FLAT_HAIR_NOTE)
     if resting:

@@ -51,10 +51,11 @@ Decisions
   ``inward``: the faces (and normals) of both arms are wound inward. ``clutter``: 2–5 stray
   blobs (spheres r 2–6 cm, 0.3–1.2 m from the body) and a ring of floor points/triangles around
   the feet (r 0.25–0.6 m).
-- **Scans without feet** (``raw_feetless`` / ``cloud_feetless`` / ``closed_feetless``,
-  :func:`feetless_cases`): scanners whose views miss the feet, or a floor cropped away with them,
-  deliver a body that ends at the ankles: everything below a drawn 6-12 cm over the soles is
-  removed (points, and faces with them; a closed mesh is left open there), random frame.
+- **Scans without feet** (``raw_feetless`` / ``cloud_feetless`` / ``closed_feetless`` /
+  ``capped_feetless``, :func:`feetless_cases`): scanners whose views miss the feet, or a floor
+  cropped away with them, deliver a body that ends at the ankles: everything below a drawn
+  6-12 cm over the soles is removed (points, and faces with them; a closed mesh is left open
+  there, or closed by the software's cap, flat or domed: :func:`cap_cut`), random frame.
 - **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
   uniformly by area on the true body surface with 0.5 mm noise and the soles removed
   (``dense``).
@@ -134,6 +135,8 @@ KINDS = {
     "missed or cropped with the floor)",
     "cloud_feetless": "point cloud without normals that ends 6-12 cm above the soles",
     "closed_feetless": "closed mesh (5-7 mm grid) that ends 6-12 cm above the soles, open there",
+    "capped_feetless": "closed mesh (5-7 mm grid) that ends 6-12 cm above the soles, the cut "
+    "closed by the scanner software (a flat or domed cap)",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -153,10 +156,16 @@ TILT_RANGE_DEG = (5.0, 45.0)
 #: a floor cropped away with them; everything below :data:`FEETLESS_CUT_RANGE_M` over the soles
 #: removed, faces with it) and the kind each is delivered as; only in :func:`feetless_cases`
 #: (``bench.realworld --feetless``).
-FEETLESS_KINDS = {"raw_feetless": "raw", "cloud_feetless": "cloud", "closed_feetless": "closed"}
+FEETLESS_KINDS = {
+    "raw_feetless": "raw", "cloud_feetless": "cloud", "closed_feetless": "closed",
+    "capped_feetless": "closed",
+}  # fmt: skip
 #: Heights (metres above the soles) below which a feetless kind holds nothing: the ankles
 #: (lateral malleolus 6-8 cm up) to the lower shins.
 FEETLESS_CUT_RANGE_M = (0.06, 0.12)
+#: How far (metres) ``capped_feetless``'s cap bulges below the cut: flat in half the cases,
+#: else drawn from this range (:func:`cap_cut`).
+CAP_DOME_RANGE_M = (0.005, 0.02)
 
 #: The kinds in the order that seeds their randomness and :func:`make_case`'s draw (kind None):
 #: fixed, so that a kind added later leaves every earlier case as it was.
@@ -165,7 +174,7 @@ _SEED_ORDER = (
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
     "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled", "raw_feetless",
-    "cloud_feetless", "closed_feetless",
+    "cloud_feetless", "closed_feetless", "capped_feetless",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -574,6 +583,54 @@ def closed_mesh(
 # ----------------------------------------------------------------------------- raw outputs
 
 
+def cap_cut(
+    V: np.ndarray, F: np.ndarray, cut_y: float, dome_m: float, band_m: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
+    """Close the holes a horizontal cut at ``cut_y`` (metres) left in a mesh, as scanner software
+    does: each boundary loop within ``band_m`` above the cut is filled by rings shrinking to its
+    centre at about the loop's edge length, bulging ``dome_m`` below it at the centre (0: flat).
+    Returns the vertices (n', 3) and triangles (m', 3), wound as the mesh's."""
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    code = E[:, 0] * len(V) + E[:, 1]
+    rev = np.isin(E[:, 1] * len(V) + E[:, 0], code)
+    nxt = dict(E[~rev].tolist())  # directed boundary edges a -> b (one per vertex on a hole)
+    Vs, Fs, n = [V], [F], len(V)
+    seen: set[int] = set()
+    for a0 in list(nxt):
+        if a0 in seen:
+            continue
+        loop, a = [], a0
+        while a not in seen:
+            seen.add(a)
+            loop.append(a)
+            a = nxt.get(a, a0)
+        ring = np.asarray(loop)
+        if len(ring) < 3 or V[ring, 1].max() > cut_y + band_m:
+            continue
+        P = V[ring]
+        c = P.mean(axis=0)
+        edge = float(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1).mean())
+        k = max(1, round(np.linalg.norm(P - c, axis=1).mean() / max(edge, 1e-9)))
+        outer = ring
+        for i in range(1, k + 1):
+            t = 1.0 - i / k
+            if i == k:  # the centre, a fan
+                Vs.append((c - [0.0, dome_m, 0.0])[None])
+                centre = np.full(len(outer), n)
+                Fs.append(np.stack([np.roll(outer, -1), outer, centre], axis=1))
+                n += 1
+                break
+            Q = c + t * (P - c)
+            Q[:, 1] -= dome_m * (1.0 - t * t)
+            inner = np.arange(n, n + len(Q))
+            Vs.append(Q)
+            n += len(Q)
+            o1, i1 = np.roll(outer, -1), np.roll(inner, -1)
+            Fs += [np.stack([o1, outer, inner], axis=1), np.stack([o1, inner, i1], axis=1)]
+            outer = inner
+    return np.vstack(Vs), np.vstack(Fs).astype(np.int64)
+
+
 def _sphere(c: np.ndarray, r: float, n: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Icosphere-like triangulated sphere (octahedron subdivided ``n`` times)."""
     V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -964,6 +1021,13 @@ def make_case(
         X = X[keep]
         normals = None if normals is None else normals[keep]
         out["cut_m"] = cut
+        if kind_drawn == "capped_feetless":
+            assert F is not None
+            crng = np.random.default_rng([seed, 110])
+            dome = float(crng.uniform(*CAP_DOME_RANGE_M)) if crng.random() < 0.5 else 0.0
+            X, F = cap_cut(X, F, P[:, 1].min() + cut, dome)
+            normals = None if normals is None else vertex_normals(X, F)
+            out["cap_dome_m"] = dome
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
                 "closed_filled", "closed_booth_filled"):  # fmt: skip
@@ -1021,6 +1085,9 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
         bits.append(f"tilted {out['tilt_deg']:.0f}°")
     if "cut_m" in out:
         bits.append(f"nothing below {out['cut_m'] * 100:.0f} cm")
+    if "cap_dome_m" in out:
+        d = out["cap_dome_m"]
+        bits.append(f"capped there ({f'domed {d * 1000:.0f} mm' if d else 'flat'})")
     bits.append(f"{n:,} {'vertices' if F is not None else 'points'}, {units}, up {up}")
     return ", ".join(bits)
 
@@ -1100,8 +1167,8 @@ def tilted_cases(n: int = 24, start: int = 800) -> list[tuple[int, str]]:
 
 def feetless_cases(n: int = 12, start: int = 1000) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs of scans that end above the soles (:data:`FEETLESS_KINDS`),
-    seeds ``start`` on (clear of the other sets), raw scans, point clouds and closed meshes in
-    turn."""
+    seeds ``start`` on (clear of the other sets), raw scans, point clouds, closed meshes open at
+    the cut and closed meshes capped there in turn."""
     kinds = list(FEETLESS_KINDS)
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
@@ -1139,6 +1206,7 @@ __all__ = [
     "RealWorldCase",
     "benchmark_cases",
     "booth_cases",
+    "cap_cut",
     "closed_mesh",
     "clutter",
     "decimate",

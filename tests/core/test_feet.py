@@ -205,39 +205,91 @@ def test_a_decimated_meshs_feet_end_at_the_truths_toes(realworld_case):
     assert any(n.startswith("decimated mesh") for n in res.report.notes), res.report.notes
 
 
-@pytest.mark.parametrize("seed", [1000, 1001, 1002])
+@pytest.mark.parametrize("seed", [1000, 1001, 1002, 1003])
 def test_a_scan_that_ends_above_the_soles_is_told_from_one_with_feet(realworld_case, seed):
-    """raw_feetless-1000, cloud_feetless-1001, closed_feetless-1002 (nothing below 6-12 cm over
-    the soles) and the same bodies delivered whole: seen from above, the feet's band covers more
-    ground than the legs' band higher up (1.24-6.4 times on ``bench.realworld``'s scans), the
-    ankles' less (0.57-0.86); whichever way up the scan is held."""
-    from core.matching.markerless import feet_in_scan
+    """raw_feetless-1000, cloud_feetless-1001, closed_feetless-1002, capped_feetless-1003
+    (nothing below 6-12 cm over the soles; 1003 closed there by a flat cap) and the same bodies
+    delivered whole: seen from above, the feet's band covers more ground than the legs' band
+    higher up (1.24-6.4 times on ``bench.realworld``'s scans), the ankles' less (0.57-0.86),
+    and the feet stand ahead of the shins, a cap's filled ankles (its footprint read as feet:
+    1.01-1.89) under them; whichever way up the scan is held."""
+    from core.matching.markerless import (
+        MIN_FEET_FOOTPRINT,
+        feet_footprint_ratio,
+        feet_in_scan,
+    )
     from core.synth.scanner_outputs import FEETLESS_KINDS, feetless_cases
     from core.template import load_template
 
-    kind = dict(feetless_cases(3))[seed]
+    kind = dict(feetless_cases(4))[seed]
     head = load_template().part_mask("head")
     whole = FEETLESS_KINDS[kind].replace("closed", "closed_lowres")
     for delivered, feet in ((kind, False), (whole, True)):
         _, scan, truth = realworld_case(seed, delivered)
         down = bool(truth[head, 1].mean() < truth[:, 1].mean())  # read upside down: feet on top
         assert feet_in_scan(scan, top=down) is feet, delivered
+        if delivered == "capped_feetless":  # the footprint alone would call the caps feet
+            assert feet_footprint_ratio(scan, top=down) >= MIN_FEET_FOOTPRINT
         scan.V = scan.V * np.array([1.0, -1.0, 1.0])
         assert feet_in_scan(scan, top=not down) is feet, delivered
 
 
+def _upright(scan, truth: np.ndarray) -> np.ndarray:
+    """The scan turned head-up (as the fit turns it over), in place; returns the truth turned
+    with it."""
+    from core.io.frame import turn_over
+    from core.template import load_template
+
+    if truth[load_template().part_mask("head"), 1].mean() < truth[:, 1].mean():
+        truth = truth @ turn_over(scan).T
+    return truth
+
+
+@pytest.mark.parametrize("seed", [1003, 1007])
+def test_the_cap_that_closes_a_cut_is_left_out(realworld_case, seed):
+    """capped_feetless-1003 (flat cap) and -1007 (domed 18 mm): :func:`cut_caps` marks the cap
+    (points off the true skin) and little else, and the scan without it has the cut's rim as
+    hole boundary (no data weight); an open cut (closed_feetless-1002) has no cap to mark."""
+    from core.geometry import MeshDistance
+    from core.matching.markerless import MIN_CAP_POINTS, cut_caps
+    from core.scan import scan_without
+    from core.template import load_template
+
+    F = np.asarray(load_template().F, np.int64)
+    case, scan, truth = realworld_case(seed, "capped_feetless")
+    truth = _upright(scan, truth)
+    dome = case.params["output"]["cap_dome_m"]
+    caps = cut_caps(scan)
+    off = MeshDistance(truth, F).distances(scan.V) > 0.003  # not on the true skin: the cap
+    low = scan.V[:, 1] < scan.V[:, 1].min() + 0.03
+    assert caps.sum() >= MIN_CAP_POINTS
+    assert (caps & off).sum() >= 0.9 * (off & low).sum(), ((caps & off).sum(), (off & low).sum())
+    assert (caps & ~off).sum() <= 0.25 * caps.sum()  # the rim, where skin and cap meet
+    kept = scan_without(scan, caps, "cut_cap_points", rim=True)
+    assert kept.removed["cut_cap_points"] == caps.sum()
+    assert len(kept.V) == len(scan.V) - caps.sum() and kept.F.max() < len(kept.V)
+    rim = kept.boundary & ~scan.boundary[~caps]
+    assert rim.sum() > 20 and np.ptp(kept.V[rim, 1]) < 0.03 + dome  # at the cut, nowhere else
+    _, open_scan, open_truth = realworld_case(1002, "closed_feetless")
+    _upright(open_scan, open_truth)
+    assert cut_caps(open_scan).sum() < MIN_CAP_POINTS
+
+
 def test_a_scan_without_feet_fits_the_body_and_says_the_feet_are_guessed(realworld_case):
-    """raw_feetless-1003 (a raw scan that ends 8 cm above the soles). Before the feet check the
-    markerless fit stood the body's soles on the scan's lowest points (the first fit's floor)
-    and scaled it to the scan's height: 37.5 mm from the truth, foot_L 144 mm off. With it the
-    body is searched again hung from the scan's top and standing below it, its feet are the
-    body prior's and the report says so: 7.2 mm (``bench.realworld --feetless``), `suspect` for
-    the feet alone."""
+    """capped_feetless-1011 (a closed mesh that ends 8 cm above the soles, the cut capped by a
+    19 mm dome). Before the feet check the markerless fit stood the body's soles on the scan's
+    lowest points (the first fit's floor) and scaled it to the scan's height (raw_feetless-1003:
+    37.5 mm from the truth, foot_L 144 mm off); before the cap was told from feet and left out,
+    it took the cap for soles (51.3 mm, hands 92-98 mm off, `failed`). Now the body is searched
+    again hung from the scan's top and standing below it, facing where the ankles stand ahead
+    of the calves; its feet are the body prior's and the report says so: 7.1 mm
+    (``bench.realworld --feetless``), `suspect` for the feet alone."""
     from core.matching.markerless import FEETLESS_WARNING, fit_markerless
 
-    _, scan, truth = realworld_case(1003, "raw_feetless")
+    case, scan, _ = realworld_case(1011, "capped_feetless")
     res = fit_markerless(scan)
     q = res.report.quality
+    truth = scan.frame.to_canonical(case.truth)  # the fit may have turned the scan over
     err = np.linalg.norm(res.vertices - truth, axis=1) * 1000
     assert err.mean() < 10.0, err.mean()
     for side in "LR":
@@ -247,6 +299,7 @@ def test_a_scan_without_feet_fits_the_body_and_says_the_feet_are_guessed(realwor
     assert q.quality != "failed", q.reasons
     assert any("not in the scan" in r for r in q.reasons)
     assert FEETLESS_WARNING in res.report.warnings
+    assert res.report.removed.get("cut_cap_points", 0) > 0
     # the stature is the body's, not the cut scan's
     stature = np.ptp(res.vertices[:, 1]) * 1000
     assert abs(stature - np.ptp(truth[:, 1]) * 1000) < 30.0, stature

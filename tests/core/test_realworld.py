@@ -594,21 +594,33 @@ def test_booth_subjects_hole_filled_keep_their_hair_and_touching_arms():
 
 
 def test_feetless_scans_end_above_the_soles():
-    """raw_feetless / cloud_feetless / closed_feetless (seeds 1000 on, in turn): nothing below
-    the drawn 6-12 cm over the truth's soles (and something just above it), the faces kept
-    renumbered over the kept points; the seed's body and posture, as every kind of it."""
-    cases = feetless_cases(6)
+    """raw_feetless / cloud_feetless / closed_feetless / capped_feetless (seeds 1000 on, in
+    turn): nothing below the drawn 6-12 cm over the truth's soles but a capped mesh's cap (and
+    something just above it), the faces kept renumbered over the kept points; the capped mesh
+    watertight, wound outward, its cap no deeper than drawn; the seed's body and posture, as
+    every kind of it."""
+    cases = feetless_cases(8)
     assert [k for _, k in cases] == list(FEETLESS_KINDS) * 2
     raw = make_case(1000, "raw")
-    for seed, kind in cases[:3]:
+    for seed, kind in cases[:4]:
         c = make_case(seed, kind)
         A = c.to_file
         inv = np.linalg.inv(A[:3, :3])
         V, T = (c.V - A[:3, 3]) @ inv.T, (c.truth - A[:3, 3]) @ inv.T
         cut = c.params["output"]["cut_m"]
+        dome = c.params["output"].get("cap_dome_m", 0.0)
+        assert (kind == "capped_feetless") == ("cap_dome_m" in c.params["output"])
         assert FEETLESS_CUT_RANGE_M[0] <= cut <= FEETLESS_CUT_RANGE_M[1]
-        assert V[:, 1].min() > T[:, 1].min() + cut - 1e-9
+        assert V[:, 1].min() > T[:, 1].min() + cut - dome - 1e-9
         assert V[:, 1].min() < T[:, 1].min() + cut + 0.01  # cut there, not higher
+        if kind == "capped_feetless":  # closed: each edge in two faces, once each way
+            assert c.F is not None
+            D = np.concatenate([c.F[:, [0, 1]], c.F[:, [1, 2]], c.F[:, [2, 0]]])
+            assert len(np.unique(D, axis=0)) == len(D)
+            assert len(np.unique(np.sort(D, axis=1), axis=0)) * 2 == len(D)
+            P = V[c.F]
+            assert np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() > 0
+            assert (V[:, 1] < T[:, 1].min() + cut - 1e-9).any() == (dome > 0)
         if c.F is not None:
             assert c.F.min() >= 0 and c.F.max() < len(c.V)
         assert (c.F is None) == (kind == "cloud_feetless")

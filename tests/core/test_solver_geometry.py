@@ -146,3 +146,17 @@ def test_fill_reducing_order_of_the_template_solves_the_same_system_with_less_fi
     x = ordered.solve(b)
     np.testing.assert_allclose(x, own.solve(b), rtol=0, atol=1e-9 * np.abs(x).max())
     assert np.abs(M @ x - b).max() < 1e-9 * np.abs(b).max() * np.abs(M).max()
+
+
+def test_mesh_distance_skips_points_in_no_triangle():
+    """A mesh that keeps vertices no triangle uses (a scan whose cap was cut away leaves a few):
+    queries next to them get the distance to the triangles, not infinity; the rest unchanged."""
+    tpl = load_template()
+    V, F = tpl.V, np.asarray(tpl.F, dtype=np.int64)
+    rng = np.random.default_rng(2)
+    P = V[rng.choice(len(V), 200, replace=False)] + rng.normal(0.0, 0.003, (200, 3))
+    # 8 loose points right where the queries are: the nearest vertices of each query
+    loose = np.repeat(P[:25], 8, axis=0) + rng.normal(0.0, 1e-5, (200, 3))
+    d = MeshDistance(np.vstack([V, loose]), F, k=4).distances(P)
+    assert np.isfinite(d).all()
+    assert np.allclose(d, MeshDistance(V, F, k=4).distances(P), atol=1e-12)
