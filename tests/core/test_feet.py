@@ -275,6 +275,26 @@ def test_the_cap_that_closes_a_cut_is_left_out(realworld_case, seed):
     assert cut_caps(open_scan).sum() < MIN_CAP_POINTS
 
 
+@pytest.mark.parametrize("seed", [1007, 1009])
+def test_a_scan_without_feet_faces_where_its_ankles_stand_ahead_of_its_calves(realworld_case, seed):
+    """capped_feetless-1007 (BMI 52) and cloud_feetless-1009: the calf bulges behind the shin,
+    so the band over the cut has its centre ahead of the calves' (3-17 mm on ``--feetless``'s
+    16 scans): the search's facing cue (:data:`FEETLESS_CUE_MIN`), which points within 45° of
+    the body's forward (without it both were fitted backwards, 397 and 339 mm off)."""
+    from core.matching.markerless import FEETLESS_CUE_MIN, feet_forward
+    from core.synth.scanner_outputs import feetless_cases
+    from core.template import load_template
+
+    _, scan, truth = realworld_case(seed, dict(feetless_cases(16))[seed])
+    truth = _upright(scan, truth)
+    L = load_template().landmarks
+    fwd = sum(truth[L[f"Toe_tip_{x}"]] - truth[L[f"Calcaneus_posterior_{x}"]] for x in "LR")
+    fwd = fwd[[0, 2]] / np.linalg.norm(fwd[[0, 2]])
+    cue = feet_forward(scan, min_share=FEETLESS_CUE_MIN)
+    assert cue is not None
+    assert cue @ fwd > np.cos(np.radians(45.0)), cue @ fwd
+
+
 def test_a_scan_without_feet_fits_the_body_and_says_the_feet_are_guessed(realworld_case):
     """capped_feetless-1011 (a closed mesh that ends 8 cm above the soles, the cut capped by a
     19 mm dome). Before the feet check the markerless fit stood the body's soles on the scan's
