@@ -22,7 +22,8 @@ vertices, and without the hands, which a closed mesh turns into mittens). Result
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers]
-[--heavy | --booth | --wide | --palms | --tilted | --feetless | --decimated] [--jobs 1]
+[--heavy | --booth | --wide | --palms | --tilted | --feetless | --headcut | --decimated]
+[--jobs 1]
 [--kinds K1,K2] [--seeds S1,S2]``.
 """
 
@@ -698,6 +699,12 @@ def main(argv: list[str] | None = None) -> int:
         "meshes in turn) instead of the varied set",
     )
     ap.add_argument(
+        "--headcut",
+        action="store_true",
+        help="--cases scans that end 3-9 cm below the crown (raw scans, point clouds and closed "
+        "meshes in turn) instead of the varied set",
+    )
+    ap.add_argument(
         "--tilted",
         action="store_true",
         help="--cases bodies in a handheld scanner's frame, 5-45° off every file axis (raw "
@@ -751,6 +758,7 @@ def main(argv: list[str] | None = None) -> int:
         decimated_cases,
         feetless_cases,
         filled_cases,
+        headcut_cases,
         heavy_cases,
         palm_cases,
         tilted_cases,
@@ -758,12 +766,13 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     sets = sum(
-        (args.heavy, args.booth, args.wide, args.palms, args.decimated, args.tilted, args.feetless)
-    )
+        (args.heavy, args.booth, args.wide, args.palms, args.decimated, args.tilted, args.feetless,
+         args.headcut)
+    )  # fmt: skip
     if sets + args.filled > 1 + (args.booth and (args.decimated or args.filled)):
         ap.error(
-            "--heavy, --booth, --wide, --palms, --tilted, --feetless, --filled and --decimated "
-            "are different "
+            "--heavy, --booth, --wide, --palms, --tilted, --feetless, --headcut, --filled and "
+            "--decimated are different "
             "sets: "
             "choose one "
             "(or --booth --decimated / --booth --filled: the booth subjects decimated / "
@@ -783,6 +792,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = tilted_cases(args.cases)
     elif args.feetless:
         cases = feetless_cases(args.cases)
+    elif args.headcut:
+        cases = headcut_cases(args.cases)
     elif args.booth:
         cases = booth_cases(args.cases)
     elif args.wide:
@@ -816,7 +827,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'-booth' if args.booth else ''}{'-wide' if args.wide else ''}"
         f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
         f"{'-tilted' if args.tilted else ''}{'-filled' if args.filled else ''}"
-        f"{'-feetless' if args.feetless else ''}"
+        f"{'-feetless' if args.feetless else ''}{'-headcut' if args.headcut else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )

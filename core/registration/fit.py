@@ -1039,7 +1039,7 @@ RETRIES = (
 _RANK = {"good": 0, "suspect": 1, "failed": 2}
 
 
-def _score(res: FitResult) -> tuple[int, float, int, float]:
+def attempt_score(res: FitResult) -> tuple[int, float, int, float]:
     """Lower is better: verdict, the scan→fit p95 summed over the parts not good (unexplained
     data where the fit is weak; a part without scan points near it counts as lost,
     ``LOST_SCAN_TO_FIT_M``), their number, the whole scan's scan→fit p95. The sum before the
@@ -1104,13 +1104,13 @@ def fit(
     initialisation, kept for the later retries when it was better; every marker trusted at full
     weight; the parts that are not good weighted ×4 with scan→body pairs), and the best result
     is kept (verdict, then parts not good, then their scan→fit p95, then the scan's: see
-    ``_score``): at most 1 + ``len(RETRIES)`` fits. The report's notes list the attempts; a part
-    still lost stays in the verdict with its name. ``retries``: the retries to try (a subset of
-    :data:`RETRIES`, in its order; the markerless fit keeps only those its own landmarks do not
-    undo, :data:`core.matching.markerless.MARKERLESS_RETRIES`). Without ``assess`` (see
-    :func:`iter_fit`) there is no quality check and so no retry; nor is there one for parts
-    the scan cannot place (:attr:`core.registration.quality.FitQuality.unresolved`: a hand
-    resting on the body), only for :meth:`~core.registration.quality.FitQuality.weak_parts`.
+    :func:`attempt_score`): at most 1 + ``len(RETRIES)`` fits. The report's notes list the
+    attempts; a part still lost stays in the verdict with its name. ``retries``: the retries
+    to try (a subset of :data:`RETRIES`, in its order; the markerless fit keeps only those its
+    own landmarks do not undo, :data:`core.matching.markerless.MARKERLESS_RETRIES`). Without
+    ``assess`` (see :func:`iter_fit`) there is no quality check and so no retry; nor is there
+    one for parts the scan cannot place (:attr:`core.registration.quality.FitQuality.unresolved`:
+    a hand resting on the body), only for :meth:`~core.registration.quality.FitQuality.weak_parts`.
     """
     options: dict[str, Any] = {
         "schedule": schedule, "template": template, "max_distance": max_distance,
@@ -1158,7 +1158,7 @@ def fit(
         r = _run(scan, markers, callback, o)
         rq = r.report.quality
         attempts.append(f"{name}: {rq.quality if rq else 'n/a'}")
-        if _score(r) < _score(best):
+        if attempt_score(r) < attempt_score(best):
             best, start = r, PriorOptions.of(o["prior_options"]).initial_pose
     best.report.notes.append(
         "quality retries: " + "; ".join(attempts) + f" (kept: {best.report.quality.quality})"

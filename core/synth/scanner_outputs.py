@@ -56,6 +56,9 @@ Decisions
   cropped away with them, deliver a body that ends at the ankles: everything below a drawn
   6-12 cm over the soles is removed (points, and faces with them; a closed mesh is left open
   there, or closed by the software's cap, flat or domed: :func:`cap_cut`), random frame.
+- **Scans cut at the head** (``raw_headcut`` / ``cloud_headcut`` / ``closed_headcut``,
+  :func:`headcut_cases`): a tall subject in a short scan volume: everything above a drawn
+  3-9 cm below the crown is removed (a closed mesh is left open there), random frame.
 - **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
   uniformly by area on the true body surface with 0.5 mm noise and the soles removed
   (``dense``).
@@ -137,6 +140,10 @@ KINDS = {
     "closed_feetless": "closed mesh (5-7 mm grid) that ends 6-12 cm above the soles, open there",
     "capped_feetless": "closed mesh (5-7 mm grid) that ends 6-12 cm above the soles, the cut "
     "closed by the scanner software (a flat or domed cap)",
+    "raw_headcut": "raw multi-view range scan that ends 3-9 cm below the crown (a tall subject "
+    "in a short scan volume)",
+    "cloud_headcut": "point cloud without normals that ends 3-9 cm below the crown",
+    "closed_headcut": "closed mesh (5-7 mm grid) that ends 3-9 cm below the crown, open there",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -163,6 +170,14 @@ FEETLESS_KINDS = {
 #: Heights (metres above the soles) below which a feetless kind holds nothing: the ankles
 #: (lateral malleolus 6-8 cm up) to the lower shins.
 FEETLESS_CUT_RANGE_M = (0.06, 0.12)
+#: The head-cut kinds (scans that end below the crown: a tall subject in a short scan volume,
+#: the top of the head cropped; everything above :data:`HEADCUT_RANGE_M` below the crown
+#: removed, faces with it) and the kind each is delivered as; only in :func:`headcut_cases`
+#: (``bench.realworld --headcut``).
+HEADCUT_KINDS = {"raw_headcut": "raw", "cloud_headcut": "cloud", "closed_headcut": "closed"}
+#: Depths (metres below the crown) above which a head-cut kind holds nothing (a raw scan's
+#: crown dropout, :class:`core.synth.scanner.ScanConfig`'s ``crown_cap_m``, is 1-4 cm).
+HEADCUT_RANGE_M = (0.03, 0.09)
 #: How far (metres) ``capped_feetless``'s cap bulges below the cut: flat in half the cases,
 #: else drawn from this range (:func:`cap_cut`).
 CAP_DOME_RANGE_M = (0.005, 0.02)
@@ -174,7 +189,8 @@ _SEED_ORDER = (
     "raw_clutter", "raw_inward", "closed_booth", "raw_wide", "closed_wide", "cloud_wide",
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
     "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled", "raw_feetless",
-    "cloud_feetless", "closed_feetless", "capped_feetless",
+    "cloud_feetless", "closed_feetless", "capped_feetless", "raw_headcut", "cloud_headcut",
+    "closed_headcut",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -948,7 +964,7 @@ def make_case(
         forearm_twist=twist,
     )  # fmt: skip
     kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
-    for delivered in (WIDE_KINDS, PALM_KINDS, TILTED_KINDS, FEETLESS_KINDS):
+    for delivered in (WIDE_KINDS, PALM_KINDS, TILTED_KINDS, FEETLESS_KINDS, HEADCUT_KINDS):
         kind = delivered.get(kind, kind)
     rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
@@ -1028,6 +1044,14 @@ def make_case(
             X, F = cap_cut(X, F, P[:, 1].min() + cut, dome)
             normals = None if normals is None else vertex_normals(X, F)
             out["cap_dome_m"] = dome
+    if kind_drawn in HEADCUT_KINDS:  # nothing above the cut: points, and faces with them
+        cut = float(np.random.default_rng([seed, 111]).uniform(*HEADCUT_RANGE_M))
+        keep = X[:, 1] < P[:, 1].max() - cut
+        if F is not None:
+            F = kept_faces(F, keep)
+        X = X[keep]
+        normals = None if normals is None else normals[keep]
+        out["head_cut_m"] = cut
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
                 "closed_filled", "closed_booth_filled"):  # fmt: skip
@@ -1085,6 +1109,8 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
         bits.append(f"tilted {out['tilt_deg']:.0f}°")
     if "cut_m" in out:
         bits.append(f"nothing below {out['cut_m'] * 100:.0f} cm")
+    if "head_cut_m" in out:
+        bits.append(f"nothing above {out['head_cut_m'] * 100:.0f} cm below the crown")
     if "cap_dome_m" in out:
         d = out["cap_dome_m"]
         bits.append(f"capped there ({f'domed {d * 1000:.0f} mm' if d else 'flat'})")
@@ -1098,7 +1124,7 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     closed-vs-raw agreement check)."""
     apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled",
              "closed_booth_filled")  # fmt: skip
-    sets = (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS, *FEETLESS_KINDS)
+    sets = (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS, *FEETLESS_KINDS, *HEADCUT_KINDS)
     base = [k for k in sorted(KINDS) if k not in sets]
     out: list[tuple[int, str]] = []
     seed = i = 0
@@ -1173,6 +1199,13 @@ def feetless_cases(n: int = 12, start: int = 1000) -> list[tuple[int, str]]:
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
 
+def headcut_cases(n: int = 12, start: int = 1100) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of scans that end below the crown (:data:`HEADCUT_KINDS`), seeds
+    ``start`` on (clear of the other sets), raw scans, point clouds and closed meshes in turn."""
+    kinds = list(HEADCUT_KINDS)
+    return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
+
+
 def filled_cases(n: int = 16, start: int = 900) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
     ``closed_filled`` mesh (booth software's watertight mesh of its own raw scan, the holes
@@ -1198,6 +1231,7 @@ __all__ = [
     "EXTRA_HAIR_STYLES",
     "FEETLESS_KINDS",
     "HAIR_STYLES",
+    "HEADCUT_KINDS",
     "KINDS",
     "PALM_KINDS",
     "SUBSET_33",
@@ -1217,6 +1251,7 @@ __all__ = [
     "hair_box",
     "hair_mesh",
     "hair_volume",
+    "headcut_cases",
     "heavy_cases",
     "make_case",
     "other_convention_markers",

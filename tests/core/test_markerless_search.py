@@ -781,3 +781,27 @@ def test_a_heavy_bodys_hole_filled_booth_mesh_is_fitted_standing_square(tmp_path
     assert turn("pelvis") < 5.0, turn("pelvis")
     assert max(turn("thigh_L"), turn("thigh_R")) < 10.0, (turn("thigh_L"), turn("thigh_R"))
     assert np.linalg.norm(res.vertices - truth, axis=1).mean() * 1000 < 15.0
+
+
+def test_a_scan_cut_below_the_crown_is_fitted_from_a_taller_start(realworld_case):
+    """raw_headcut-1109 (a raw scan that ends 8 cm below the crown: a tall subject in a short
+    scan volume). The search scales the template to the scan's height; from a body that short
+    the fit bent the head down into the scan: 32.1 mm from the truth, the head 74 mm off,
+    `failed`. A fit whose head fails is run again with the search's best rigid candidate also
+    tried 4 % taller on the same soles (TALLER_START), the better kept: 4.4 mm, and the report
+    says the crown is the body prior's guess."""
+    from core.matching.markerless import fit_markerless
+    from core.template import load_template
+
+    case, scan, _ = realworld_case(1109, "raw_headcut")
+    res = fit_markerless(scan)
+    truth = scan.frame.to_canonical(case.truth)  # the fit may have turned the scan over
+    err = np.linalg.norm(res.vertices - truth, axis=1) * 1000
+    head = load_template().part_mask("head")
+    assert err.mean() < 10.0, err.mean()
+    assert err[head].mean() < 15.0, err[head].mean()
+    assert res.report.quality.quality != "failed", res.report.quality.reasons
+    assert any("below the fitted crown" in w for w in res.report.warnings), res.report.warnings
+    assert any(n.startswith("the head failed") and "kept" in n for n in res.report.notes)
+    stature = np.ptp(res.vertices[:, 1]) * 1000
+    assert abs(stature - np.ptp(truth[:, 1]) * 1000) < 25.0, stature

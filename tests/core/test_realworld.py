@@ -22,6 +22,8 @@ from core.synth.realworld import (
 from core.synth.scanner_outputs import (
     FEETLESS_CUT_RANGE_M,
     FEETLESS_KINDS,
+    HEADCUT_KINDS,
+    HEADCUT_RANGE_M,
     KINDS,
     PALM_KINDS,
     SUBSET_33,
@@ -34,6 +36,7 @@ from core.synth.scanner_outputs import (
     closed_mesh,
     decimated_cases,
     feetless_cases,
+    headcut_cases,
     heavy_cases,
     make_case,
     palm_cases,
@@ -313,7 +316,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     # booth and the wide-arms kinds: sets of their own
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
-        *TILTED_KINDS, "closed_filled", "closed_booth_filled", *FEETLESS_KINDS,
+        *TILTED_KINDS, "closed_filled", "closed_booth_filled", *FEETLESS_KINDS, *HEADCUT_KINDS,
     }  # fmt: skip
 
 
@@ -625,4 +628,27 @@ def test_feetless_scans_end_above_the_soles():
             assert c.F.min() >= 0 and c.F.max() < len(c.V)
         assert (c.F is None) == (kind == "cloud_feetless")
         if seed == 1000:  # the seed's body (sex, BMI, stature), as every kind of it
+            assert c.description.split(", ")[:3] == raw.description.split(", ")[:3]
+
+
+def test_headcut_scans_end_below_the_crown():
+    """raw_headcut / cloud_headcut / closed_headcut (seeds 1100 on, in turn): nothing above the
+    drawn 3-9 cm below the truth's crown (and something just under it), the faces kept
+    renumbered over the kept points; the seed's body, as every kind of it."""
+    cases = headcut_cases(6)
+    assert [k for _, k in cases] == list(HEADCUT_KINDS) * 2
+    raw = make_case(1100, "raw")
+    for seed, kind in cases[:3]:
+        c = make_case(seed, kind)
+        A = c.to_file
+        inv = np.linalg.inv(A[:3, :3])
+        V, T = (c.V - A[:3, 3]) @ inv.T, (c.truth - A[:3, 3]) @ inv.T
+        cut = c.params["output"]["head_cut_m"]
+        assert HEADCUT_RANGE_M[0] <= cut <= HEADCUT_RANGE_M[1]
+        assert V[:, 1].max() < T[:, 1].max() - cut + 1e-9
+        assert V[:, 1].max() > T[:, 1].max() - cut - 0.01  # cut there, not lower
+        if c.F is not None:
+            assert c.F.min() >= 0 and c.F.max() < len(c.V)
+        assert (c.F is None) == (kind == "cloud_headcut")
+        if seed == 1100:
             assert c.description.split(", ")[:3] == raw.description.split(", ")[:3]
