@@ -907,6 +907,12 @@ MARKERLESS_RETRIES = tuple(
 )
 
 
+def _take_over(scan: Scan, other: Scan) -> None:
+    """The caller's ``scan`` becomes ``other`` (every field), in place."""
+    for f in fields(scan):
+        setattr(scan, f.name, getattr(other, f.name))
+
+
 def _turned(start: Start, M: np.ndarray) -> Start:
     """``start`` for the scan rotated by ``M`` (3, 3): its similarity followed by ``M``."""
     sim = start.similarity
@@ -981,9 +987,7 @@ def fit_markerless(
             index = ScanIndex(scan)
         caps = cut_caps(scan)
         if caps.sum() >= MIN_CAP_POINTS:  # the caller's scan, in place (as turned over)
-            kept = scan_without(scan, caps, "cut_cap_points", rim=True)
-            for f in fields(scan):
-                setattr(scan, f.name, getattr(kept, f.name))
+            _take_over(scan, scan_without(scan, caps, "cut_cap_points", rim=True))
             index = ScanIndex(scan)
             cap_note = (
                 f"{int(caps.sum())} points closing the scan's cut above the soles left out "
@@ -1077,8 +1081,7 @@ def fit_markerless(
         _, start, res, k = min(fits, key=lambda f: f[0])
         if k == 1:  # the other way up won: the caller's scan takes that view, in place
             assert alt_scan is not None
-            for f in fields(scan):
-                setattr(scan, f.name, getattr(alt_scan, f.name))
+            _take_over(scan, alt_scan)
             index = views[1][1]
         tie_note = "; near-tied starts, the shape-space fit from each scored " + ", ".join(
             f"{f[1].label}{', head-down' if f[3] != int(best_down) else ''} {f[0]:.3f}"
@@ -1308,8 +1311,7 @@ def fit_markerless(
             f"{again.report.quality.quality if again.report.quality else 'n/a'})"
         )
         if kept:  # the caller's scan as that attempt held it
-            for f in fields(scan):
-                setattr(scan, f.name, getattr(snapshot, f.name))
+            _take_over(scan, snapshot)
             again.report.notes.append(note)
             return again
         res.report.notes.append(note)

@@ -599,6 +599,18 @@ def closed_mesh(
 # ----------------------------------------------------------------------------- raw outputs
 
 
+def _kept(
+    keep: np.ndarray, X: np.ndarray, F: np.ndarray | None, normals: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The points X (n, 3) ``keep`` ((n,) bool) selects, the triangles F among them (renumbered)
+    and their normals (either may be None)."""
+    return (
+        X[keep],
+        None if F is None else kept_faces(F, keep),
+        None if normals is None else normals[keep],
+    )
+
+
 def cap_cut(
     V: np.ndarray, F: np.ndarray, cut_y: float, dome_m: float, band_m: float = 0.02
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1031,11 +1043,7 @@ def make_case(
             F, normals = None, None
     if kind_drawn in FEETLESS_KINDS:  # nothing below the cut: points, and faces with them
         cut = float(np.random.default_rng([seed, 109]).uniform(*FEETLESS_CUT_RANGE_M))
-        keep = X[:, 1] > P[:, 1].min() + cut
-        if F is not None:
-            F = kept_faces(F, keep)
-        X = X[keep]
-        normals = None if normals is None else normals[keep]
+        X, F, normals = _kept(X[:, 1] > P[:, 1].min() + cut, X, F, normals)
         out["cut_m"] = cut
         if kind_drawn == "capped_feetless":
             assert F is not None
@@ -1046,11 +1054,7 @@ def make_case(
             out["cap_dome_m"] = dome
     if kind_drawn in HEADCUT_KINDS:  # nothing above the cut: points, and faces with them
         cut = float(np.random.default_rng([seed, 111]).uniform(*HEADCUT_RANGE_M))
-        keep = X[:, 1] < P[:, 1].max() - cut
-        if F is not None:
-            F = kept_faces(F, keep)
-        X = X[keep]
-        normals = None if normals is None else normals[keep]
+        X, F, normals = _kept(X[:, 1] < P[:, 1].max() - cut, X, F, normals)
         out["head_cut_m"] = cut
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
