@@ -22,7 +22,8 @@ vertices, and without the hands, which a closed mesh turns into mittens). Result
 ``bench/results/realworld-DATE[-markers]`` (.txt table and .json) with the git commit.
 
 Usage: ``nice python -m bench.realworld [--cases N] [--markers]
-[--heavy | --booth | --wide | --palms | --tilted | --feetless | --headcut | --decimated]
+[--heavy | --booth | --wide | --palms | --tilted | --feetless | --headcut | --swayed
+| --decimated]
 [--jobs 1]
 [--kinds K1,K2] [--seeds S1,S2]``.
 """
@@ -705,6 +706,13 @@ def main(argv: list[str] | None = None) -> int:
         "meshes in turn) instead of the varied set",
     )
     ap.add_argument(
+        "--swayed",
+        action="store_true",
+        help="--cases subjects who moved between a sequential scan's views (sway of the "
+        "body, arms drifting, breathing; raw scans and point clouds in turn) instead of the "
+        "varied set",
+    )
+    ap.add_argument(
         "--tilted",
         action="store_true",
         help="--cases bodies in a handheld scanner's frame, 5-45° off every file axis (raw "
@@ -761,17 +769,19 @@ def main(argv: list[str] | None = None) -> int:
         headcut_cases,
         heavy_cases,
         palm_cases,
+        swayed_cases,
         tilted_cases,
         wide_cases,
     )
 
     sets = sum(
         (args.heavy, args.booth, args.wide, args.palms, args.decimated, args.tilted, args.feetless,
-         args.headcut)
+         args.headcut, args.swayed)
     )  # fmt: skip
     if sets + args.filled > 1 + (args.booth and (args.decimated or args.filled)):
         ap.error(
-            "--heavy, --booth, --wide, --palms, --tilted, --feetless, --headcut, --filled and "
+            "--heavy, --booth, --wide, --palms, --tilted, --feetless, --headcut, --swayed, "
+            "--filled and "
             "--decimated are different "
             "sets: "
             "choose one "
@@ -794,6 +804,8 @@ def main(argv: list[str] | None = None) -> int:
         cases = feetless_cases(args.cases)
     elif args.headcut:
         cases = headcut_cases(args.cases)
+    elif args.swayed:
+        cases = swayed_cases(args.cases)
     elif args.booth:
         cases = booth_cases(args.cases)
     elif args.wide:
@@ -828,6 +840,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'-palms' if args.palms else ''}{'-decimated' if args.decimated else ''}"
         f"{'-tilted' if args.tilted else ''}{'-filled' if args.filled else ''}"
         f"{'-feetless' if args.feetless else ''}{'-headcut' if args.headcut else ''}"
+        f"{'-swayed' if args.swayed else ''}"
         f"{'-hair-' + args.hair if args.hair else ''}"
         f"{'-markers' if args.markers else ''}"
     )

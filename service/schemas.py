@@ -329,6 +329,12 @@ class PartQualityOut(BaseModel):
         description="torso: the Substernale's share of navel -> suprasternal notch over the "
         "template's, max(r, 1/r)",
     )
+    scan_spread_m: float | None = Field(
+        None,
+        description="the scan's own spread about its surface there (m; scanner noise reads "
+        "about 0.001, more where the scan holds the skin in layers: a subject who moved "
+        "between views, views misaligned); hands and feet take their arm's and leg's",
+    )
 
 
 class FitQualityOut(BaseModel):

@@ -57,6 +57,8 @@ from core.registration.quality import (
     FitQuality,
     assess_fit,
     part_labels,
+    spread_allowance,
+    spread_warning,
 )
 from core.registration.schedule import Schedule, Stage
 from core.registration.shape_prior import (
@@ -1019,6 +1021,9 @@ def final_report(
     )
     if report.quality.quality != "good":
         report.warnings.append(report.quality.summary())
+    layers = spread_warning(report.quality)
+    if layers:
+        report.warnings.append(layers)
     report.seconds = time.perf_counter() - t_start
     return FitResult(
         vertices=X, faces=F_full, affines=frame.affines_to_world(A), data_weight=weights_full,
@@ -1051,7 +1056,12 @@ def attempt_score(res: FitResult) -> tuple[int, float, int, float]:
         return (0, 0.0, 0, res.report.scan_to_fit_p95_m)
     weak = [p for p in q.parts.values() if p.quality != "good"]
     unexplained = sum(
-        float(np.nan_to_num(p.scan_to_fit_p95_m, nan=LOST_SCAN_TO_FIT_M)) for p in weak
+        max(
+            float(np.nan_to_num(p.scan_to_fit_p95_m, nan=LOST_SCAN_TO_FIT_M))
+            - spread_allowance(p.scan_spread_m),
+            0.0,
+        )
+        for p in weak
     )
     return (_RANK[q.quality], unexplained, len(weak), res.report.scan_to_fit_p95_m)
 

@@ -50,6 +50,7 @@ from functools import cache
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
 
 from core.rig import (
     axis_angle,
@@ -448,6 +449,68 @@ def posture(
     return P, ang
 
 
+#: A subject scanned view after view (a handheld scanner's sweeps, a turntable, booth heads
+#: that fire in turn) moves between the views (:func:`moved_views`). Per case: the RMS sway of
+#: the crown (metres; the body turns about the floor between its feet, as an inverted
+#: pendulum), the RMS drift of each arm about the shoulder (degrees, out from the body and
+#: forwards) and the breathing amplitude of the chest and belly (metres along the normals).
+SWAY_RANGE_M = (0.003, 0.012)
+ARM_DRIFT_RANGE_DEG = (0.5, 2.0)
+BREATH_RANGE_M = (0.001, 0.004)
+
+
+def moved_views(
+    P: np.ndarray, rng: np.random.Generator, n_views: int
+) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], dict]:
+    """The posed body ``P`` as each of ``n_views`` sequential views saw it.
+
+    Each view's body is ``P`` with both arms turned about their shoulders, the chest and belly
+    moved along their normals (breathing), then the whole body turned about the floor point
+    under its centre (sway). Every motion is drawn per view and its mean over the views taken
+    out, so ``P`` is where the subject stood on average: the truth of the scan.
+
+    Returns
+    -------
+    ([(V_k (13380, 3) metres, R_k (3, 3), t_k (3,))] per view, where the sway alone maps a
+    point x to ``R_k @ x + t_k`` (for what moves rigidly with the body: hair), and the draws:
+    ``sway_m``, ``arm_drift_deg``, ``breath_m`` (per case) and ``crown_moves_m`` (per view).
+    """
+    rig = load_rig()
+    tpl = load_template()
+    J = joint_positions(P, rig=rig)
+    height = float(P[:, 1].max() - P[:, 1].min())
+    sway = float(rng.uniform(*SWAY_RANGE_M))
+    drift = float(rng.uniform(*ARM_DRIFT_RANGE_DEG))
+    breath = float(rng.uniform(*BREATH_RANGE_M))
+
+    def centred(x: np.ndarray) -> np.ndarray:
+        return x - x.mean(axis=0)
+
+    # sway: horizontal rotation vectors (radians) whose crown displacement has RMS ``sway``
+    tilt = centred(rng.normal(0.0, sway / height / np.sqrt(2.0), (n_views, 2)))
+    arms = centred(rng.normal(0.0, np.radians(drift), (n_views, 4)))  # L out, L fwd, R out, R fwd
+    breaths = centred(rng.uniform(-breath, breath, (n_views, 1)))[:, 0]
+    N = tpl.vertex_normals(P)
+    front = 1.0 / (1.0 + np.exp(-(P[:, 2] - np.median(P[:, 2])) / 0.02))
+    chest = _part_weight(("torso", "pelvis"), 10) * front
+    pivot = np.array([P[:, 0].mean(), P[:, 1].min(), P[:, 2].mean()])
+    top = int(np.argmax(P[:, 1]))
+    views, moves = [], []
+    for k in range(n_views):
+        rot = {
+            "upperarm01.L": axis_angle(_Z, arms[k, 0]) @ axis_angle(_X, -arms[k, 1]),
+            "upperarm01.R": axis_angle(_Z, -arms[k, 2]) @ axis_angle(_X, -arms[k, 3]),
+        }
+        Vk = pose_body(P, rot, rig=rig, joints=J) + breaths[k] * chest[:, None] * N
+        R = Rotation.from_rotvec([tilt[k, 0], 0.0, tilt[k, 1]]).as_matrix()
+        t = pivot - R @ pivot
+        Vk = Vk @ R.T + t
+        views.append((Vk, R, t))
+        moves.append(float(np.linalg.norm(Vk[top] - P[top])))
+    info = {"sway_m": sway, "arm_drift_deg": drift, "breath_m": breath, "crown_moves_m": moves}
+    return views, info
+
+
 def joint_world(V: np.ndarray, rotations: dict[str, np.ndarray]) -> np.ndarray:
     """(J, 3) posed joint positions of a rest body ``V`` under ``rotations`` (metres)."""
     rig = load_rig()
@@ -457,11 +520,15 @@ def joint_world(V: np.ndarray, rotations: dict[str, np.ndarray]) -> np.ndarray:
 
 
 __all__ = [
+    "ARM_DRIFT_RANGE_DEG",
+    "BREATH_RANGE_M",
     "PALM_TWIST_RANGE",
     "POSTURE_RANGES",
+    "SWAY_RANGE_M",
     "WIDE_ARM_RANGE",
     "RealBody",
     "mesh_volume",
+    "moved_views",
     "off_model_body",
     "posture",
     "rest_arm_abduction",

@@ -307,6 +307,7 @@ def simulate_scan(
     landmarks: dict[str, int] | None = None,
     colors: np.ndarray | None = None,
     color_noise: float = 0.02,
+    view_bodies: list[np.ndarray] | None = None,
 ) -> SimScan:
     """Simulate a raw multi-view whole-body range scan of a template-order body.
 
@@ -320,6 +321,10 @@ def simulate_scan(
     colors : (13380, 3) float RGB in [0, 1] painted on the body: each scan point gets the
         barycentric colour of the surface point it samples plus Gaussian noise
         (``color_noise``, drawn after everything else: the geometry is the uncoloured scan's).
+    view_bodies : ``config.n_views`` arrays shaped like ``V`` (same triangles ``F``): the body
+        as each view saw it (a subject who moved between sequential views,
+        :func:`core.synth.realworld.moved_views`); ``V`` stays the truth. Colours are not
+        supported with it.
 
     Returns
     -------
@@ -333,17 +338,26 @@ def simulate_scan(
     if F.ndim != 2 or F.shape[1] != 3 or F.max(initial=0) >= len(V):
         raise ValueError(f"F must be (m, 3) indices into V, got shape {F.shape}")
     cfg = config
+    if view_bodies is not None:
+        if len(view_bodies) != cfg.n_views or any(np.shape(b) != V.shape for b in view_bodies):
+            raise ValueError(f"view_bodies must be {cfg.n_views} arrays of shape {V.shape}")
+        if colors is not None:
+            raise ValueError("colors are not supported with view_bodies")
     t0 = time.perf_counter()
     centre = np.array([V[:, 0].mean(), 0.0, V[:, 2].mean()])
     Vc = V - centre
     N = vertex_normals(Vc, F)
-    if _signed_volume(Vc, F) < 0:  # make normals point outwards
-        N = -N
+    outward = 1.0 if _signed_volume(Vc, F) >= 0 else -1.0  # normals point outwards
+    N = outward * N
     phi0 = np.radians(rng.uniform(-cfg.azimuth_jitter_deg, cfg.azimuth_jitter_deg))
     Ps, Ts, Cs, Rs, views, srcs = [], [], [], [], [], []
     n0 = 0
     for k in range(cfg.n_views):
-        P, T, conf, ray, src = _scan_view(Vc, F, N, phi0 + 2 * np.pi * k / cfg.n_views, cfg, rng)
+        Vk, Nk = Vc, N
+        if view_bodies is not None:  # the body where it stood when this view was taken
+            Vk = np.asarray(view_bodies[k], dtype=np.float64) - centre
+            Nk = outward * vertex_normals(Vk, F)
+        P, T, conf, ray, src = _scan_view(Vk, F, Nk, phi0 + 2 * np.pi * k / cfg.n_views, cfg, rng)
         srcs.append(src)
         Ps.append(P)
         Ts.append(T + n0)

@@ -59,6 +59,12 @@ Decisions
 - **Scans cut at the head** (``raw_headcut`` / ``cloud_headcut`` / ``closed_headcut``,
   :func:`headcut_cases`): a tall subject in a short scan volume: everything above a drawn
   3-9 cm below the crown is removed (a closed mesh is left open there), random frame.
+- **Subjects who moved between views** (``raw_swayed`` / ``cloud_swayed``,
+  :func:`swayed_cases`): a sequential capture (handheld sweeps, a turntable, booth heads firing
+  in turn) sees the body once per view, each time swayed, the arms drifted and the chest
+  breathing differently (:func:`core.synth.realworld.moved_views`; the motions' mean over the
+  views taken out: the truth is where the subject stood on average); the skin then lies in
+  layers a few millimetres apart. Random frame.
 - **Point clouds** carry no normals: the raw scan's points (``cloud``), or 1.0–3.0 M points drawn
   uniformly by area on the true body surface with 0.5 mm noise and the soles removed
   (``dense``).
@@ -87,6 +93,7 @@ from core.synth.realworld import (
     PALM_TWIST_RANGE,
     WIDE_ARM_RANGE,
     mesh_volume,
+    moved_views,
     off_model_body,
     posture,
 )
@@ -144,6 +151,9 @@ KINDS = {
     "in a short scan volume)",
     "cloud_headcut": "point cloud without normals that ends 3-9 cm below the crown",
     "closed_headcut": "closed mesh (5-7 mm grid) that ends 3-9 cm below the crown, open there",
+    "raw_swayed": "raw multi-view range scan of a subject who moved between the views (sway, "
+    "arms drifting, breathing)",
+    "cloud_swayed": "point cloud without normals of a subject who moved between the views",
 }
 #: The wide-arms kinds (:data:`core.synth.realworld.WIDE_ARM_RANGE`: T-pose and near it) and the
 #: kind each is delivered as; only in :func:`wide_cases` (``bench.realworld --wide``).
@@ -178,6 +188,11 @@ HEADCUT_KINDS = {"raw_headcut": "raw", "cloud_headcut": "cloud", "closed_headcut
 #: Depths (metres below the crown) above which a head-cut kind holds nothing (a raw scan's
 #: crown dropout, :class:`core.synth.scanner.ScanConfig`'s ``crown_cap_m``, is 1-4 cm).
 HEADCUT_RANGE_M = (0.03, 0.09)
+#: The swayed kinds (a subject scanned view after view, who moved between the views:
+#: :func:`core.synth.realworld.moved_views`; the truth is where the subject stood on average)
+#: and the kind each is delivered as; only in :func:`swayed_cases` (``bench.realworld
+#: --swayed``).
+SWAYED_KINDS = {"raw_swayed": "raw", "cloud_swayed": "cloud"}
 #: How far (metres) ``capped_feetless``'s cap bulges below the cut: flat in half the cases,
 #: else drawn from this range (:func:`cap_cut`).
 CAP_DOME_RANGE_M = (0.005, 0.02)
@@ -190,7 +205,7 @@ _SEED_ORDER = (
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
     "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled", "raw_feetless",
     "cloud_feetless", "closed_feetless", "capped_feetless", "raw_headcut", "cloud_headcut",
-    "closed_headcut",
+    "closed_headcut", "raw_swayed", "cloud_swayed",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -752,17 +767,26 @@ def raw_scan(
     V: np.ndarray,
     rng: np.random.Generator,
     hair: tuple[np.ndarray, np.ndarray] | None = None,
+    views: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A raw multi-view scan (6 views, 4 mm pitch, 1 mm noise) in metres: points, faces, normals.
 
     ``hair``: a hair surface (vertices, triangles; :func:`hair_mesh`) scanned with the body: the
-    scanner sees the hair and not the scalp under it.
+    scanner sees the hair and not the scalp under it. ``views``: the body as each of the 6
+    views saw it, with the sway that moves the hair (:func:`core.synth.realworld.moved_views`).
     """
     tpl = load_template()
     F = np.asarray(tpl.F, dtype=np.int64)
+    bodies = None
+    if views is not None:
+        bodies = [b for b, _, _ in views]
     if hair is not None:
+        if bodies is not None:
+            bodies = [np.vstack([b, hair[0] @ R.T + t]) for b, R, t in views]  # type: ignore[union-attr]
         V, F = np.vstack([V, hair[0]]), np.vstack([F, hair[1] + len(V)])
-    sim = simulate_scan(V, F, rng, config=ScanConfig(n_views=6, pitch_m=0.004, noise_m=0.001))
+    sim = simulate_scan(
+        V, F, rng, config=ScanConfig(n_views=6, pitch_m=0.004, noise_m=0.001), view_bodies=bodies
+    )
     return sim.V_scan, sim.F_scan, sim.normals
 
 
@@ -976,7 +1000,11 @@ def make_case(
         forearm_twist=twist,
     )  # fmt: skip
     kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
-    for delivered in (WIDE_KINDS, PALM_KINDS, TILTED_KINDS, FEETLESS_KINDS, HEADCUT_KINDS):
+    views = None
+    if kind in SWAYED_KINDS:  # the body as each sequential view saw it
+        views, out_views = moved_views(P, np.random.default_rng([seed, 112]), 6)
+    for delivered in (WIDE_KINDS, PALM_KINDS, TILTED_KINDS, FEETLESS_KINDS, HEADCUT_KINDS,
+                      SWAYED_KINDS):  # fmt: skip
         kind = delivered.get(kind, kind)
     rng = np.random.default_rng([seed, 103, kinds.index(kind_drawn)])
     out: dict = {}
@@ -1030,7 +1058,9 @@ def make_case(
         F = None
         out["points"] = len(X)
     else:
-        X, F, normals = raw_scan(P, rng, hair=_scanned_hair(P, hair, seed, out))
+        X, F, normals = raw_scan(P, rng, hair=_scanned_hair(P, hair, seed, out), views=views)
+        if views is not None:
+            out["moved"] = out_views
         if kind == "raw_inward":
             F, normals, flip = wind_arms_inward(X, F, normals, P)
             out["flipped_faces"] = int(flip.sum())
@@ -1115,6 +1145,12 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
         bits.append(f"nothing below {out['cut_m'] * 100:.0f} cm")
     if "head_cut_m" in out:
         bits.append(f"nothing above {out['head_cut_m'] * 100:.0f} cm below the crown")
+    if "moved" in out:
+        m = out["moved"]
+        bits.append(
+            f"moved between views (crown {max(m['crown_moves_m']) * 1000:.0f} mm, arms "
+            f"{m['arm_drift_deg']:.1f}°, breath {m['breath_m'] * 1000:.0f} mm)"
+        )
     if "cap_dome_m" in out:
         d = out["cap_dome_m"]
         bits.append(f"capped there ({f'domed {d * 1000:.0f} mm' if d else 'flat'})")
@@ -1128,7 +1164,8 @@ def benchmark_cases(n: int = 40) -> list[tuple[int, str]]:
     closed-vs-raw agreement check)."""
     apart = ("dense", "closed_booth", "closed_decimated", "closed_booth_decimated", "closed_filled",
              "closed_booth_filled")  # fmt: skip
-    sets = (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS, *FEETLESS_KINDS, *HEADCUT_KINDS)
+    sets = (*apart, *WIDE_KINDS, *PALM_KINDS, *TILTED_KINDS, *FEETLESS_KINDS, *HEADCUT_KINDS,
+            *SWAYED_KINDS)  # fmt: skip
     base = [k for k in sorted(KINDS) if k not in sets]
     out: list[tuple[int, str]] = []
     seed = i = 0
@@ -1210,6 +1247,14 @@ def headcut_cases(n: int = 12, start: int = 1100) -> list[tuple[int, str]]:
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 
 
+def swayed_cases(n: int = 12, start: int = 1200) -> list[tuple[int, str]]:
+    """``n`` (seed, kind) pairs of subjects who moved between sequential views
+    (:data:`SWAYED_KINDS`), seeds ``start`` on (clear of the other sets), raw scans and point
+    clouds in turn, each in a random frame."""
+    kinds = list(SWAYED_KINDS)
+    return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
+
+
 def filled_cases(n: int = 16, start: int = 900) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs, seeds ``start`` on (clear of the other sets): each body as a
     ``closed_filled`` mesh (booth software's watertight mesh of its own raw scan, the holes
@@ -1239,6 +1284,7 @@ __all__ = [
     "KINDS",
     "PALM_KINDS",
     "SUBSET_33",
+    "SWAYED_KINDS",
     "TILTED_KINDS",
     "WIDE_KINDS",
     "RealWorldCase",
@@ -1262,6 +1308,7 @@ __all__ = [
     "outward_largest_component",
     "palm_cases",
     "raw_scan",
+    "swayed_cases",
     "tilted_cases",
     "wide_cases",
     "wind_arms_inward",

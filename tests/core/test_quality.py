@@ -599,3 +599,47 @@ def test_a_closed_meshs_mitten_over_a_hand_kept_from_the_body_prior_is_allowed_i
     assert mitten.parts["hand_L"].quality == "good", mitten.reasons
     assert mitten.parts["hand_R"].quality == "suspect"
     assert mitten.parts["hand_L"].scan_to_fit_p95_m == plain.parts["hand_L"].scan_to_fit_p95_m
+
+
+@pytest.mark.parametrize("layers", [True, False])
+def test_a_scan_recording_the_head_twice_is_suspect_without_a_retry_unlike_a_head_off_its_data(
+    case, fitted, layers
+):
+    """The head's scan points recorded twice, 12 mm out and 12 mm in along the fit's normals
+    (a subject who moved between a sequential scan's views): the scan's own spread there reads
+    them, the head stays `suspect` with the layers as its reason and is unresolved (no quality
+    retry can explain both layers); the same points all moved 12 mm out (the fit off its data)
+    read no spread and leave the head a weak part, as ever."""
+    from dataclasses import replace
+
+    from scipy.spatial import cKDTree
+
+    from core.geometry import vertex_normals
+    from core.registration.quality import SPREAD_NOISE_M
+
+    tpl = load_template()
+    X = fitted.vertices
+    N = vertex_normals(X, np.asarray(tpl.F, np.int64))
+    V = np.asarray(case.scan.V)
+    _, nv = cKDTree(X).query(V)
+    head = _mask("head")[nv]
+    off = 0.012 * N[nv[head]]
+    moved = [V[head] + off, V[head] - off] if layers else [V[head] + off]
+    P = np.concatenate([V[~head], *moved])
+    normals = np.asarray(case.scan.normals)
+    n = np.concatenate([normals[~head]] + [normals[head]] * len(moved))
+    scan = replace(case.scan, V=P, F=None, normals=n, confidence=np.ones(len(P)),
+                   boundary=np.zeros(len(P), bool))  # fmt: skip
+    q = assess_fit(scan, X)
+    h = q.parts["head"]
+    assert h.quality == "suspect", q.reasons
+    assert h.scan_to_fit_p95_m > THRESHOLDS["scan_to_fit_p95_m"].suspect
+    assert q.parts["torso"].scan_spread_m < SPREAD_NOISE_M
+    if layers:
+        assert h.scan_spread_m > 0.008
+        assert "head" in q.unresolved and "head" not in q.weak_parts()
+        assert any(r.startswith("head:") and "layers" in r for r in q.reasons), q.reasons
+    else:
+        assert h.scan_spread_m < SPREAD_NOISE_M
+        assert "head" in q.weak_parts()
+        assert not any("layers" in r for r in q.reasons), q.reasons

@@ -14,8 +14,10 @@ from core.geometry import MeshDistance
 from core.synth.bodies import random_body
 from core.synth.realworld import (
     PALM_TWIST_RANGE,
+    SWAY_RANGE_M,
     WIDE_ARM_RANGE,
     mesh_volume,
+    moved_views,
     off_model_body,
     posture,
 )
@@ -27,6 +29,7 @@ from core.synth.scanner_outputs import (
     KINDS,
     PALM_KINDS,
     SUBSET_33,
+    SWAYED_KINDS,
     TILT_RANGE_DEG,
     TILTED_KINDS,
     UNITS,
@@ -40,6 +43,7 @@ from core.synth.scanner_outputs import (
     heavy_cases,
     make_case,
     palm_cases,
+    swayed_cases,
     tilted_cases,
     wide_cases,
 )
@@ -317,6 +321,7 @@ def test_closed_mesh_floor_plate_and_benchmark_list():
     assert {k for _, k in cases} == set(KINDS) - {
         "closed_booth", "closed_decimated", "closed_booth_decimated", *WIDE_KINDS, *PALM_KINDS,
         *TILTED_KINDS, "closed_filled", "closed_booth_filled", *FEETLESS_KINDS, *HEADCUT_KINDS,
+        *SWAYED_KINDS,
     }  # fmt: skip
 
 
@@ -647,3 +652,36 @@ def test_headcut_scans_end_below_the_crown():
         assert (c.F is None) == (kind == "cloud_headcut")
         if seed == 1100:
             assert c.description.split(", ")[:3] == raw.description.split(", ")[:3]
+
+
+def test_swayed_scans_see_a_subject_who_moved_between_the_views():
+    """raw_swayed / cloud_swayed (seeds 1200 on, in turn): each of the 6 views sees the body
+    moved (sway about the floor, arms drifting, breathing), the moves' mean over the views is
+    the truth (where the subject stood on average), and the scan's points lie further from the
+    truth's surface than the same body's still scan's, by millimetres, not centimetres."""
+    cases = swayed_cases(4)
+    assert [k for _, k in cases] == list(SWAYED_KINDS) * 2
+    rest = off_model_body(np.random.default_rng(7)).V
+    P, _ = posture(rest, np.random.default_rng(8))
+    views, info = moved_views(P, np.random.default_rng(9), 6)
+    assert len(views) == 6 and len(info["crown_moves_m"]) == 6
+    assert SWAY_RANGE_M[0] <= info["sway_m"] <= SWAY_RANGE_M[1]
+    mean = np.mean([v for v, _, _ in views], axis=0)
+    assert np.abs(mean - P).max() < 5e-4  # second order in the small angles
+    moved = np.array([np.linalg.norm(v - P, axis=1).max() for v, _, _ in views])
+    assert (moved > 0.002).all() and (moved < 0.06).all(), moved
+    for _, R, t in views:  # the sway part is a rotation about the floor point under the body
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        pivot = np.array([P[:, 0].mean(), P[:, 1].min(), P[:, 2].mean()])
+        np.testing.assert_allclose(R @ pivot + t, pivot, atol=1e-12)
+
+    tpl = load_template()
+    F_t = np.asarray(tpl.F, np.int64)
+    seed, kind = cases[0]
+    c, still = make_case(seed, kind), make_case(seed, "raw")
+    assert c.description.split(", ")[:3] == still.description.split(", ")[:3]
+    assert "moved between views" in c.description and "moved" in c.params["output"]
+    d = [MeshDistance(T, F_t).distances(V) for V, T in (_canonical(c), _canonical(still))]
+    p90 = [float(np.percentile(x, 90)) for x in d]
+    assert p90[0] > p90[1] + 0.0005 and p90[0] < 0.015, p90
+    assert make_case(cases[1][0], cases[1][1]).F is None  # the cloud
