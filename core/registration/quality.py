@@ -297,7 +297,8 @@ SPREAD_NOISE_M = 0.0015
 SPREAD_P95_FACTOR = 2.0
 #: A scan whose own spread exceeds this (metres) on a part of the body's (not a hand or foot:
 #: they take their limb's) gets a warning (:func:`spread_warning`): still scans read ≤ 1.2 mm
-#: (hair 1.0-1.2), ``--swayed`` scans 1.2-3.9.
+#: (hair 1.0-1.2), ``--swayed`` scans 1.2-3.9, a raw scan with 2.5 mm noise (a consumer
+#: handheld scanner's) 1.8-2.2.
 SPREAD_WARN_M = 0.002
 #: The part whose spread a hand or foot takes (:func:`scan_spread`).
 SPREAD_FROM = {"hand_L": "arm_L", "hand_R": "arm_R", "foot_L": "leg_L", "foot_R": "leg_R"}
@@ -785,10 +786,11 @@ def spread_warning(quality: FitQuality) -> str | None:
     order = sorted(wide.items(), key=lambda x: -x[1])
     parts = ", ".join(f"{n} {v * 1000:.1f} mm" for n, v in order)
     return (
-        f"the scan disagrees with itself: its surface lies in layers ({parts} about the fitted "
-        "surface; a scanner's noise reads about 1 mm): the subject moved between the scanner's "
-        "views, or the views were misaligned. The fit lies between the layers; its shape and "
-        "measurements are uncertain by about twice that spread there (rescan holding still)"
+        f"the scan's surface is thick: its points spread {parts} about the fitted surface (a "
+        "good scanner's noise reads about 1 mm): a noisy scanner, a subject who moved between "
+        "the scanner's views, or views misaligned. Scan→fit distances up to about twice the "
+        "spread are the scan's own, not the fit's; where the subject moved, the body's shape "
+        "and measurements may be off by as much (rescan holding still)"
     )
 
 
@@ -962,9 +964,9 @@ def assess_fit(
                 layered = True
                 pr = [
                     f"{name}: scan→fit p95 {s2f_p95 * 1000:.0f} mm, as far as the scan's own "
-                    f"layers spread ({spread[name] * 1000:.1f} mm about its surface, scanner "
-                    "noise reads about 1): the subject moved between views or the views are "
-                    "misaligned; the fit lies between the layers"
+                    f"spread reaches ({spread[name] * 1000:.1f} mm about its surface, a good "
+                    "scanner's noise about 1: the subject moved between views, views "
+                    "misaligned or a noisy scanner); no fit explains it better"
                 ]
         # suspect only where the scan cannot tell (checked again below: lost or without data)
         scan_cannot_tell = AMBIGUOUS_FIGURES[0] in flagged and flagged <= set(AMBIGUOUS_FIGURES)

@@ -638,8 +638,8 @@ def test_a_scan_recording_the_head_twice_is_suspect_without_a_retry_unlike_a_hea
     if layers:
         assert h.scan_spread_m > 0.008
         assert "head" in q.unresolved and "head" not in q.weak_parts()
-        assert any(r.startswith("head:") and "layers" in r for r in q.reasons), q.reasons
+        assert any(r.startswith("head:") and "own spread" in r for r in q.reasons), q.reasons
     else:
         assert h.scan_spread_m < SPREAD_NOISE_M
         assert "head" in q.weak_parts()
-        assert not any("layers" in r for r in q.reasons), q.reasons
+        assert not any("own spread" in r for r in q.reasons), q.reasons
