@@ -148,8 +148,8 @@ def feet_forward(
     Feet stick out in front of the ankles (toes 15–20 cm ahead, heel 5 cm behind), so a band
     just above the soles has its centre 4–10 cm in front of the shins' (measured on the 38
     scans of ``benchmark_cases(40)``: 40–102 mm, every one pointing the body's way). ``top``:
-    the feet are at the top (an upside-down hypothesis). A scan that ends above the soles
-    points the same way (:data:`FEETLESS_CUE_MIN`): its ankles stand in front of its calves.
+    the feet are at the top (an upside-down hypothesis). A scan that ends above the soles has
+    its own cue (:func:`calves_behind`).
     """
     off = _feet_offset(scan, top=top)
     if off is None:
@@ -179,12 +179,18 @@ MIN_FEET_AHEAD = 0.015
 #: about 5 % of stature): the search's candidates stand that much taller than the scan, hung
 #: from its head end.
 FEETLESS_MISSING = 0.05
-#: The feet cue's least offset (share of the height, :func:`feet_forward`) on a scan without
-#: feet: the calf bulges behind the shin, so the band over the cut (ankles, lower shins) has its
-#: centre in front of the calves' band: 3-17 mm on ``--feetless``'s 16 scans (0.002-0.010 of
-#: the height), within 44° of the body's forward in every one (cos 0.72-1.00). Without it the
-#: search took a BMI 52 body backwards (capped_feetless-1007 and its cloud: 404 and 417 mm off).
+#: The facing cue of a scan without feet (:func:`calves_behind`): shares of the scan's height
+#: (from its lowest point, the cut) of the band over the cut, the calves' band and the knees'.
+ANKLE_BAND, CALF_BAND, KNEE_BAND = (0.0, 0.03), (0.08, 0.14), (0.20, 0.24)
+#: ... its least size (share of the height) to tell: the calves' band centre lies 1.6-11.6 mm
+#: behind the line from the band over the cut to the knees' (``--feetless``'s 16 scans, each
+#: also leaned 3-5° forwards or backwards or 3° sideways: 0.002-0.007 of the height).
 FEETLESS_CUE_MIN = 0.001
+#: A scan without feet keeps the facing candidates whose toes point within this angle (degrees)
+#: of :func:`calves_behind`'s cue: it points within 59° of the body's forward on those 112
+#: scans, so the candidate facing the body's way (itself up to ~20° off) stays and the one
+#: facing the other way goes.
+FEETLESS_CUE_ANGLE = 90.0
 
 
 #: A scan that ends above the soles may come closed there (scanner software caps the cut, flat
@@ -204,6 +210,35 @@ FEETLESS_WARNING = (
     "cropped with them): the feet are the body prior's guess, and the stature and every height "
     "measured from the soles include that guess"
 )
+
+
+def calves_behind(scan: Scan, *, top: bool = False) -> np.ndarray | None:
+    """Which way a body without feet faces (:func:`feet_in_scan`): unit (x, z) opposite to the
+    horizontal offset of the calves' band centre (:data:`CALF_BAND`) from the line joining the
+    centres of the band over the cut (:data:`ANKLE_BAND`) and of the knees' (:data:`KNEE_BAND`);
+    None where it is under :data:`FEETLESS_CUE_MIN` × the height or a band is empty. ``top``:
+    the cut is at the top (an upside-down hypothesis).
+
+    The calf bulges behind the shin. The bands' centres alone (ankles ahead of the calves,
+    :func:`feet_forward`'s offset) read 3-17 mm, and a whole-body lean moves each band by its
+    height × the lean: leaned 3° forwards, 5 of ``--feetless``' scans 1000-1007 read backwards
+    and were fitted facing that way (233-551 mm off, `failed`). The line through the ankles'
+    and knees' centres leans with the body, so the calves' offset from it does not."""
+    V = np.asarray(scan.V)
+    y = -V[:, 1] if top else V[:, 1]
+    lo, hi = np.percentile(y, [0.2, 99.8])
+    h = hi - lo
+    centres, heights = [], []
+    for a, b in (ANKLE_BAND, CALF_BAND, KNEE_BAND):
+        sel = (y > lo + a * h) & (y < lo + b * h)
+        if sel.sum() < 20 or h <= 0:
+            return None
+        centres.append(V[sel][:, [0, 2]].mean(axis=0))
+        heights.append(0.5 * (a + b))
+    t = (heights[1] - heights[0]) / (heights[2] - heights[0])
+    d = centres[1] - (centres[0] + t * (centres[2] - centres[0]))
+    n = float(np.linalg.norm(d))
+    return -d / n if n > FEETLESS_CUE_MIN * h else None
 
 
 def feet_footprint_ratio(scan: Scan, *, top: bool = False) -> float:
@@ -255,7 +290,8 @@ def candidate_alignments(
     equally well, the feet do not. ``feetless``: the scan ends above the soles
     (:func:`feet_in_scan`): the candidates are scaled 1 / (1 - :data:`FEETLESS_MISSING`) and
     hung from the scan's end their head is at (either way up: the scan's cut end may read
-    like a head), the cue read off the ankles and calves (:data:`FEETLESS_CUE_MIN`).
+    like a head), the cue read off the calves (:func:`calves_behind`, facings within
+    :data:`FEETLESS_CUE_ANGLE` of it).
     """
     tpl = load_template()
     V = np.asarray(scan.V)
@@ -275,12 +311,12 @@ def candidate_alignments(
     toes = _template_toes()
     sf = s / (1.0 - FEETLESS_MISSING) if feetless else s
     for fi, flip in enumerate(flips):
-        cue = feet_forward(
-            scan, top=fi == 1, min_share=FEETLESS_CUE_MIN if feetless else FEET_CUE_MIN
-        )
+        top = fi == 1
+        cue = calves_behind(scan, top=top) if feetless else feet_forward(scan, top=top)
+        within = np.cos(np.radians(FEETLESS_CUE_ANGLE if feetless else FEET_CUE_ANGLE))
         for deg in facing_candidates(scan):
             R = _rot_y(deg) @ flip
-            if cue is not None and (R @ toes)[[0, 2]] @ cue < np.cos(np.radians(FEET_CUE_ANGLE)):
+            if cue is not None and (R @ toes)[[0, 2]] @ cue < within:
                 continue
             Y = sf * tpl.V @ R.T
             t = np.array([c_scan[0], 0.0, c_scan[2]]) - np.array(

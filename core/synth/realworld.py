@@ -449,6 +449,17 @@ def posture(
     return P, ang
 
 
+def stand_leaned(P: np.ndarray, lean_deg: float) -> np.ndarray:
+    """The posed body ``P`` (13380, 3; +Y up, +Z front, floor y = 0) leaned as a whole about the
+    floor point under its centre, ``lean_deg`` degrees forwards (+) or backwards (−): people
+    stand with their weight ahead of the ankles, the shins tilted a few degrees."""
+    pivot = np.array([P[:, 0].mean(), P[:, 1].min(), P[:, 2].mean()])
+    R = Rotation.from_rotvec(np.radians(lean_deg) * _X).as_matrix()
+    out = (P - pivot) @ R.T + pivot
+    out[:, 1] -= out[:, 1].min()
+    return out
+
+
 #: A subject scanned view after view (a handheld scanner's sweeps, a turntable, booth heads
 #: that fire in turn) moves between the views (:func:`moved_views`). Per case: the RMS sway of
 #: the crown (metres; the body turns about the floor between its feet, as an inverted
@@ -533,4 +544,5 @@ __all__ = [
     "posture",
     "rest_arm_abduction",
     "smooth_weights",
+    "stand_leaned",
 ]

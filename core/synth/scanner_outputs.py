@@ -55,7 +55,8 @@ Decisions
   ``capped_feetless``, :func:`feetless_cases`): scanners whose views miss the feet, or a floor
   cropped away with them, deliver a body that ends at the ankles: everything below a drawn
   6-12 cm over the soles is removed (points, and faces with them; a closed mesh is left open
-  there, or closed by the software's cap, flat or domed: :func:`cap_cut`), random frame.
+  there, or closed by the software's cap, flat or domed: :func:`cap_cut`), random frame; the
+  body stands leaned as a whole by −3 to +4° at the ankles (:data:`FEETLESS_LEAN_RANGE_DEG`).
 - **Scans cut at the head** (``raw_headcut`` / ``cloud_headcut`` / ``closed_headcut``,
   :func:`headcut_cases`): a tall subject in a short scan volume: everything above a drawn
   3-9 cm below the crown is removed (a closed mesh is left open there), random frame.
@@ -96,6 +97,7 @@ from core.synth.realworld import (
     moved_views,
     off_model_body,
     posture,
+    stand_leaned,
 )
 from core.synth.scanner import ScanConfig, simulate_scan, vertex_normals
 from core.template import load_template
@@ -180,6 +182,9 @@ FEETLESS_KINDS = {
 #: Heights (metres above the soles) below which a feetless kind holds nothing: the ankles
 #: (lateral malleolus 6-8 cm up) to the lower shins.
 FEETLESS_CUT_RANGE_M = (0.06, 0.12)
+#: Whole-body lean (degrees, + forwards, about the floor under the body) of the feetless
+#: kinds: their facing cue reads the legs' profile, which a lean tilts (:func:`make_case`).
+FEETLESS_LEAN_RANGE_DEG = (-3.0, 4.0)
 #: The head-cut kinds (scans that end below the crown: a tall subject in a short scan volume,
 #: the top of the head cropped; everything above :data:`HEADCUT_RANGE_M` below the crown
 #: removed, faces with it) and the kind each is delivered as; only in :func:`headcut_cases`
@@ -1000,6 +1005,10 @@ def make_case(
         forearm_twist=twist,
     )  # fmt: skip
     kind_drawn = kind  # a wide or turned-palms kind is delivered as its base
+    if kind in FEETLESS_KINDS:  # the whole body leaned at the ankles, as people stand
+        lean = float(np.random.default_rng([seed, 113]).uniform(*FEETLESS_LEAN_RANGE_DEG))
+        P = stand_leaned(P, lean)
+        pose["stance_lean_deg"] = lean
     views = None
     if kind in SWAYED_KINDS:  # the body as each sequential view saw it
         views, out_views = moved_views(P, np.random.default_rng([seed, 112]), 6)
@@ -1139,6 +1148,8 @@ def _describe(kind, body, pose, out, units, up, n, F) -> str:
             f"forearms turned {pose['forearm_twist_L']:+.0f}°/{pose['forearm_twist_R']:+.0f}°"
         )
     bits.append(f"feet {pose['feet_gap_m'] * 100:.0f} cm apart")
+    if "stance_lean_deg" in pose:
+        bits.append(f"leaning {pose['stance_lean_deg']:+.1f}°")
     if "tilt_deg" in out:
         bits.append(f"tilted {out['tilt_deg']:.0f}°")
     if "cut_m" in out:
@@ -1279,6 +1290,7 @@ __all__ = [
     "ALL_HAIR_STYLES",
     "EXTRA_HAIR_STYLES",
     "FEETLESS_KINDS",
+    "FEETLESS_LEAN_RANGE_DEG",
     "HAIR_STYLES",
     "HEADCUT_KINDS",
     "KINDS",
