@@ -381,7 +381,8 @@ class FitOut(BaseModel):
         default_factory=dict,
         description="scan points removed as not the body before fitting (floor_points, "
         "stray_points; hair_points: hair on the head a markerless fit left out; "
-        "cut_cap_points: the surface closing a scan cut above the soles); scan->fit "
+        "cut_cap_points: the surface closing a scan cut above the soles; head_cap_points: "
+        "the flat surface closing a scan cut through the head); scan->fit "
         "figures and the quality check are over the kept points",
     )
 

@@ -57,9 +57,10 @@ Decisions
   6-12 cm over the soles is removed (points, and faces with them; a closed mesh is left open
   there, or closed by the software's cap, flat or domed: :func:`cap_cut`), random frame; the
   body stands leaned as a whole by −3 to +4° at the ankles (:data:`FEETLESS_LEAN_RANGE_DEG`).
-- **Scans cut at the head** (``raw_headcut`` / ``cloud_headcut`` / ``closed_headcut``,
-  :func:`headcut_cases`): a tall subject in a short scan volume: everything above a drawn
-  3-9 cm below the crown is removed (a closed mesh is left open there), random frame.
+- **Scans cut at the head** (``raw_headcut`` / ``cloud_headcut`` / ``closed_headcut`` /
+  ``capped_headcut``, :func:`headcut_cases`): a tall subject in a short scan volume: everything
+  above a drawn 3-9 cm below the crown is removed (a closed mesh is left open there, or closed
+  by the software's cap, flat or domed 5-20 mm: :func:`cap_cut` mirrored), random frame.
 - **Subjects who moved between views** (``raw_swayed`` / ``cloud_swayed``,
   :func:`swayed_cases`): a sequential capture (handheld sweeps, a turntable, booth heads firing
   in turn) sees the body once per view, each time swayed, the arms drifted and the chest
@@ -153,6 +154,8 @@ KINDS = {
     "in a short scan volume)",
     "cloud_headcut": "point cloud without normals that ends 3-9 cm below the crown",
     "closed_headcut": "closed mesh (5-7 mm grid) that ends 3-9 cm below the crown, open there",
+    "capped_headcut": "closed mesh (5-7 mm grid) that ends 3-9 cm below the crown, the cut "
+    "closed by the scanner software (a flat or domed cap)",
     "raw_swayed": "raw multi-view range scan of a subject who moved between the views (sway, "
     "arms drifting, breathing)",
     "cloud_swayed": "point cloud without normals of a subject who moved between the views",
@@ -189,7 +192,10 @@ FEETLESS_LEAN_RANGE_DEG = (-3.0, 4.0)
 #: the top of the head cropped; everything above :data:`HEADCUT_RANGE_M` below the crown
 #: removed, faces with it) and the kind each is delivered as; only in :func:`headcut_cases`
 #: (``bench.realworld --headcut``).
-HEADCUT_KINDS = {"raw_headcut": "raw", "cloud_headcut": "cloud", "closed_headcut": "closed"}
+HEADCUT_KINDS = {
+    "raw_headcut": "raw", "cloud_headcut": "cloud", "closed_headcut": "closed",
+    "capped_headcut": "closed",
+}  # fmt: skip
 #: Depths (metres below the crown) above which a head-cut kind holds nothing (a raw scan's
 #: crown dropout, :class:`core.synth.scanner.ScanConfig`'s ``crown_cap_m``, is 1-4 cm).
 HEADCUT_RANGE_M = (0.03, 0.09)
@@ -210,7 +216,7 @@ _SEED_ORDER = (
     "raw_palms", "closed_palms", "closed_decimated", "closed_booth_decimated", "raw_tilted",
     "cloud_tilted", "closed_tilted", "closed_filled", "closed_booth_filled", "raw_feetless",
     "cloud_feetless", "closed_feetless", "capped_feetless", "raw_headcut", "cloud_headcut",
-    "closed_headcut", "raw_swayed", "cloud_swayed",
+    "closed_headcut", "raw_swayed", "cloud_swayed", "capped_headcut",
 )  # fmt: skip
 
 #: A 33-marker subset of the CAESAR landmarks, as used by teams with shorter protocols.
@@ -1095,6 +1101,15 @@ def make_case(
         cut = float(np.random.default_rng([seed, 111]).uniform(*HEADCUT_RANGE_M))
         X, F, normals = _kept(X[:, 1] < P[:, 1].max() - cut, X, F, normals)
         out["head_cut_m"] = cut
+        if kind_drawn == "capped_headcut":  # closed as the feet's cut (mirrored: at the top)
+            assert F is not None
+            crng = np.random.default_rng([seed, 114])
+            dome = float(crng.uniform(*CAP_DOME_RANGE_M)) if crng.random() < 0.5 else 0.0
+            M = np.array([1.0, -1.0, 1.0])
+            X, F = cap_cut(X * M, F[:, ::-1], -(P[:, 1].max() - cut), dome)
+            X, F = X * M, F[:, ::-1].copy()
+            normals = None if normals is None else vertex_normals(X, F)
+            out["cap_dome_m"] = dome
     # frame
     if kind in ("closed_lowres", "closed_booth", "closed_decimated", "closed_booth_decimated",
                 "closed_filled", "closed_booth_filled"):  # fmt: skip
@@ -1253,7 +1268,8 @@ def feetless_cases(n: int = 12, start: int = 1000) -> list[tuple[int, str]]:
 
 def headcut_cases(n: int = 12, start: int = 1100) -> list[tuple[int, str]]:
     """``n`` (seed, kind) pairs of scans that end below the crown (:data:`HEADCUT_KINDS`), seeds
-    ``start`` on (clear of the other sets), raw scans, point clouds and closed meshes in turn."""
+    ``start`` on (clear of the other sets), raw scans, point clouds, closed meshes open at the
+    cut and closed meshes capped there in turn."""
     kinds = list(HEADCUT_KINDS)
     return [(start + i, kinds[i % len(kinds)]) for i in range(n)]
 

@@ -634,19 +634,28 @@ def test_feetless_scans_end_above_the_soles():
 
 
 def test_headcut_scans_end_below_the_crown():
-    """raw_headcut / cloud_headcut / closed_headcut (seeds 1100 on, in turn): nothing above the
-    drawn 3-9 cm below the truth's crown (and something just under it), the faces kept
-    renumbered over the kept points; the seed's body, as every kind of it."""
-    cases = headcut_cases(6)
+    """raw_headcut / cloud_headcut / closed_headcut / capped_headcut (seeds 1100 on, in turn):
+    nothing above the drawn 3-9 cm below the truth's crown but a capped mesh's cap (and
+    something just under it), the faces kept renumbered over the kept points; the capped mesh
+    watertight and wound outward; the seed's body, as every kind of it."""
+    cases = headcut_cases(8)
     assert [k for _, k in cases] == list(HEADCUT_KINDS) * 2
     raw = make_case(1100, "raw")
-    for seed, kind in cases[:3]:
+    for seed, kind in cases[:4]:
         c = make_case(seed, kind)
         V, T = _canonical(c)
         cut = c.params["output"]["head_cut_m"]
+        dome = c.params["output"].get("cap_dome_m", 0.0)
+        assert (kind == "capped_headcut") == ("cap_dome_m" in c.params["output"])
         assert HEADCUT_RANGE_M[0] <= cut <= HEADCUT_RANGE_M[1]
-        assert V[:, 1].max() < T[:, 1].max() - cut + 1e-9
+        assert V[:, 1].max() < T[:, 1].max() - cut + dome + 1e-9
         assert V[:, 1].max() > T[:, 1].max() - cut - 0.01  # cut there, not lower
+        if kind == "capped_headcut":  # closed: each edge in two faces, once each way
+            assert c.F is not None
+            und, dirs = _edge_uses(c.F)
+            assert np.all(und == 2) and np.all(dirs == 1)
+            P = V[c.F]
+            assert np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() > 0
         if c.F is not None:
             assert c.F.min() >= 0 and c.F.max() < len(c.V)
         assert (c.F is None) == (kind == "cloud_headcut")
