@@ -207,11 +207,11 @@ CUT_CAP_BAND_M, CUT_CAP_ANGLE, MIN_CAP_POINTS = 0.03, 45.0, 20
 #: :data:`HEAD_CAP_FLAT_ANGLE` of horizontal cover at least :data:`HEAD_CAP_MIN_CELLS`
 #: :data:`FEET_CELL_M` cells: a skull's crown covers 0-53 (``bench.realworld``'s varied set
 #: without its dense clouds, hair included, and booth 40: 77 scans), a closed mesh cut 3-9 cm
-#: below the crown and capped flat or domed 5-10 mm 89-232 (domed 20 mm: 47-61, as round as a
-#: crown). Left in, the fit took the cap for the crown: `good`, the stature 37-42 mm short,
-#: no warning (closed_headcut-1108/-1111 so capped). Its points within :data:`HEAD_CAP_DEPTH_M`
-#: of the head end within :data:`HEAD_CAP_ANGLE` of horizontal then leave the fit
-#: (:func:`head_cap`), the cut reads as one (:func:`crown_gap`).
+#: below the crown and capped flat or domed 5-11 mm 89-241 (domed 12-20 mm: 38-87, 10 of 11
+#: under 80: as round as a crown, not caught). Left in, the fit took the cap for the crown:
+#: `good`, the stature 37-42 mm short, no warning (closed_headcut-1108/-1111 so capped). Its
+#: points within :data:`HEAD_CAP_DEPTH_M` of the head end within :data:`HEAD_CAP_ANGLE` of
+#: horizontal then leave the fit (:func:`head_cap`), the cut reads as one (:func:`crown_gap`).
 HEAD_CAP_BAND_M, HEAD_CAP_FLAT_ANGLE, HEAD_CAP_MIN_CELLS = 0.004, 20.0, 80
 HEAD_CAP_DEPTH_M, HEAD_CAP_ANGLE = 0.02, 30.0
 

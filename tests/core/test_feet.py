@@ -339,3 +339,30 @@ def test_a_scan_without_feet_fits_the_body_and_says_the_feet_are_guessed(realwor
     # the stature is the body's, not the cut scan's
     stature = np.ptp(res.vertices[:, 1]) * 1000
     assert abs(stature - np.ptp(truth[:, 1]) * 1000) < 30.0, stature
+
+
+def test_a_flat_cap_closing_a_cut_through_the_head_is_left_out_a_crown_is_not(realworld_case):
+    """capped_headcut-1103 (a closed mesh cut 3 cm below the crown, capped flat by the
+    software): :func:`head_cap` marks the cap — points over the cut, off the true skin — and the
+    fit leaves them out; an open cut (closed_headcut-1102) and crowns, with hair or without,
+    (closed_hair-1, closed_lowres-0, raw-0) have none. Left in, the fit took such a cap for the
+    crown: the stature 37-42 mm short and no warning."""
+    from core.geometry import MeshDistance
+    from core.matching.markerless import MIN_CAP_POINTS, head_cap
+    from core.template import load_template
+
+    F = np.asarray(load_template().F, np.int64)
+    case, scan, truth = realworld_case(1103, "capped_headcut")
+    truth = _upright(scan, truth)
+    cap = head_cap(scan)
+    assert cap.sum() >= MIN_CAP_POINTS
+    cut_y = truth[:, 1].max() - case.params["output"]["head_cut_m"]
+    V = np.asarray(scan.V)
+    assert (V[cap, 1] > cut_y - 0.01).all()  # at the cut (its rim within 1 cm), nowhere lower
+    off = MeshDistance(truth, F).distances(V[cap])
+    assert np.median(off) > 0.01  # inside the head, not on its skin
+    for seed, kind in ((1102, "closed_headcut"), (1, "closed_hair"), (0, "closed_lowres"),
+                       (0, "raw")):  # fmt: skip
+        _, other, t = realworld_case(seed, kind)
+        _upright(other, t)
+        assert head_cap(other).sum() == 0, (seed, kind)
