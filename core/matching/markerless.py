@@ -255,6 +255,17 @@ def calves_behind(scan: Scan, *, top: bool = False) -> np.ndarray | None:
     return -d / n if n > FEETLESS_CUE_MIN * h else None
 
 
+def _footprint(P: np.ndarray) -> int:
+    """The :data:`FEET_CELL_M` cells the points P (q, 3; +Y up) cover seen from above."""
+    return len(np.unique(np.floor(P[:, [0, 2]] / FEET_CELL_M).astype(np.int64), axis=0))
+
+
+def _near_horizontal(N: np.ndarray, angle_deg: float) -> np.ndarray:
+    """(q,) bool: the normals N (q, 3) within ``angle_deg`` of ±Y (a surface near horizontal,
+    either sign: estimated or inward normals)."""
+    return np.abs(N[:, 1]) > np.cos(np.radians(angle_deg))
+
+
 def feet_footprint_ratio(scan: Scan, *, top: bool = False) -> float:
     """The footprint seen from above (occupied :data:`FEET_CELL_M` cells) of the scan's lowest
     :data:`FEET_BAND` (``top``: its highest, for a body held upside down) over that of the legs'
@@ -265,8 +276,7 @@ def feet_footprint_ratio(scan: Scan, *, top: bool = False) -> float:
     h = hi - lo
 
     def footprint(a: float, b: float) -> int:
-        P = V[(y > lo + a * h) & (y < lo + b * h)][:, [0, 2]]
-        return len(np.unique(np.floor(P / FEET_CELL_M).astype(np.int64), axis=0))
+        return _footprint(V[(y > lo + a * h) & (y < lo + b * h)])
 
     feet, legs = footprint(0.0, FEET_BAND), footprint(*FEET_REFERENCE_BAND)
     return float("inf") if h <= 0 or min(feet, legs) < 20 else feet / legs
@@ -289,7 +299,7 @@ def cut_caps(scan: Scan) -> np.ndarray:
     ends above them."""
     V, N = np.asarray(scan.V), np.asarray(scan.normals)
     lo = np.percentile(V[:, 1], 0.2)
-    return (V[:, 1] < lo + CUT_CAP_BAND_M) & (np.abs(N[:, 1]) > np.cos(np.radians(CUT_CAP_ANGLE)))
+    return (V[:, 1] < lo + CUT_CAP_BAND_M) & _near_horizontal(N, CUT_CAP_ANGLE)
 
 
 def head_cap(scan: Scan, *, down: bool = False) -> np.ndarray:
@@ -299,11 +309,10 @@ def head_cap(scan: Scan, *, down: bool = False) -> np.ndarray:
     V, N = np.asarray(scan.V), np.asarray(scan.normals)
     y = -V[:, 1] if down else V[:, 1]
     top = np.percentile(y, 99.95)
-    flat = (y > top - HEAD_CAP_BAND_M) & (np.abs(N[:, 1]) > np.cos(np.radians(HEAD_CAP_FLAT_ANGLE)))
-    cells = np.unique(np.floor(V[flat][:, [0, 2]] / FEET_CELL_M).astype(np.int64), axis=0)
-    if len(cells) < HEAD_CAP_MIN_CELLS:
+    flat = (y > top - HEAD_CAP_BAND_M) & _near_horizontal(N, HEAD_CAP_FLAT_ANGLE)
+    if _footprint(V[flat]) < HEAD_CAP_MIN_CELLS:
         return np.zeros(len(V), dtype=bool)
-    return (y > top - HEAD_CAP_DEPTH_M) & (np.abs(N[:, 1]) > np.cos(np.radians(HEAD_CAP_ANGLE)))
+    return (y > top - HEAD_CAP_DEPTH_M) & _near_horizontal(N, HEAD_CAP_ANGLE)
 
 
 def candidate_alignments(

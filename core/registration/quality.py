@@ -176,9 +176,10 @@ rise by :data:`SPREAD_P95_FACTOR` × the excess; a part suspect only by scan→f
 that allowance stays ``suspect`` with the spread as its reason, and is *unresolved* (another
 fit cannot explain the scan better: no quality retry). Measured (``bench.realworld``, fits and
 truths read within 0.3 mm of each other): raw scans 0.8-1.1 mm, point clouds 0.8-1.0, closed
-meshes 0.3-0.6; ``--swayed`` scans (crown 3-12 mm RMS between views, arms drifting 0.5-2°)
-head 2.3-3.3, arms 1.7-3.6, torso 1.9-2.1, legs 1.2-1.5 mm. A retry that weighted such a head
-×4 bent the body to cover both layers: raw_swayed-1202 9.5 -> 20.5 mm from the truth.
+meshes 0.3-0.6, dense clouds 0.5-0.8, hair 1.0-1.2; ``--swayed`` scans (crown 3-12 mm RMS
+between views, arms drifting 0.5-2°) head 1.9-3.3, arms 1.7-3.9, torso 1.6-2.0, legs 1.2-1.5
+mm. A retry that weighted such a head ×4 bent the body to cover both layers: raw_swayed-1202
+9.5 -> 20.5 mm from the truth.
 
 A part with fewer than ``MIN_POINTS`` scan points assigned has no scan→fit figures (reported as
 NaN); it is judged by its fit→scan and coverage only. Hands and feet are held to thresholds 1.5×

@@ -638,12 +638,23 @@ def _kept(
 
 
 def cap_cut(
-    V: np.ndarray, F: np.ndarray, cut_y: float, dome_m: float, band_m: float = 0.02
+    V: np.ndarray,
+    F: np.ndarray,
+    cut_y: float,
+    dome_m: float,
+    band_m: float = 0.02,
+    *,
+    top: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Close the holes a horizontal cut at ``cut_y`` (metres) left in a mesh, as scanner software
     does: each boundary loop within ``band_m`` above the cut is filled by rings shrinking to its
     centre at about the loop's edge length, bulging ``dome_m`` below it at the centre (0: flat).
+    ``top``: the mesh lies below the cut (loops within ``band_m`` under it, the cap bulging up).
     Returns the vertices (n', 3) and triangles (m', 3), wound as the mesh's."""
+    if top:  # mirrored through the horizontal plane (the winding reversed with it) and back
+        M = np.array([1.0, -1.0, 1.0])
+        X, T = cap_cut(V * M, F[:, ::-1], -cut_y, dome_m, band_m)
+        return X * M, T[:, ::-1].copy()
     E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     code = E[:, 0] * len(V) + E[:, 1]
     rev = np.isin(E[:, 1] * len(V) + E[:, 0], code)
@@ -683,6 +694,11 @@ def cap_cut(
             Fs += [np.stack([o1, outer, inner], axis=1), np.stack([o1, inner, i1], axis=1)]
             outer = inner
     return np.vstack(Vs), np.vstack(Fs).astype(np.int64)
+
+
+def _cap_dome(rng: np.random.Generator) -> float:
+    """A software cap's bulge (metres): flat in half the cases, else :data:`CAP_DOME_RANGE_M`."""
+    return float(rng.uniform(*CAP_DOME_RANGE_M)) if rng.random() < 0.5 else 0.0
 
 
 def _sphere(c: np.ndarray, r: float, n: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -1092,8 +1108,7 @@ def make_case(
         out["cut_m"] = cut
         if kind_drawn == "capped_feetless":
             assert F is not None
-            crng = np.random.default_rng([seed, 110])
-            dome = float(crng.uniform(*CAP_DOME_RANGE_M)) if crng.random() < 0.5 else 0.0
+            dome = _cap_dome(np.random.default_rng([seed, 110]))
             X, F = cap_cut(X, F, P[:, 1].min() + cut, dome)
             normals = None if normals is None else vertex_normals(X, F)
             out["cap_dome_m"] = dome
@@ -1101,13 +1116,10 @@ def make_case(
         cut = float(np.random.default_rng([seed, 111]).uniform(*HEADCUT_RANGE_M))
         X, F, normals = _kept(X[:, 1] < P[:, 1].max() - cut, X, F, normals)
         out["head_cut_m"] = cut
-        if kind_drawn == "capped_headcut":  # closed as the feet's cut (mirrored: at the top)
+        if kind_drawn == "capped_headcut":
             assert F is not None
-            crng = np.random.default_rng([seed, 114])
-            dome = float(crng.uniform(*CAP_DOME_RANGE_M)) if crng.random() < 0.5 else 0.0
-            M = np.array([1.0, -1.0, 1.0])
-            X, F = cap_cut(X * M, F[:, ::-1], -(P[:, 1].max() - cut), dome)
-            X, F = X * M, F[:, ::-1].copy()
+            dome = _cap_dome(np.random.default_rng([seed, 114]))
+            X, F = cap_cut(X, F, P[:, 1].max() - cut, dome, top=True)
             normals = None if normals is None else vertex_normals(X, F)
             out["cap_dome_m"] = dome
     # frame

@@ -68,6 +68,14 @@ def _edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return und, dirc
 
 
+def _assert_closed_outward(V: np.ndarray, F: np.ndarray) -> None:
+    """The mesh is closed (each edge in two faces, once each way) and wound outward."""
+    und, dirs = _edge_uses(F)
+    assert np.all(und == 2) and np.all(dirs == 1)
+    P = V[F]
+    assert np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() > 0
+
+
 def _winding(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Generalised winding number of points P (k, 3) w.r.t. the mesh (solid angles)."""
     out = []
@@ -619,12 +627,9 @@ def test_feetless_scans_end_above_the_soles():
         assert FEETLESS_CUT_RANGE_M[0] <= cut <= FEETLESS_CUT_RANGE_M[1]
         assert V[:, 1].min() > T[:, 1].min() + cut - dome - 1e-9
         assert V[:, 1].min() < T[:, 1].min() + cut + 0.01  # cut there, not higher
-        if kind == "capped_feetless":  # closed: each edge in two faces, once each way
+        if kind == "capped_feetless":
             assert c.F is not None
-            und, dirs = _edge_uses(c.F)
-            assert np.all(und == 2) and np.all(dirs == 1)
-            P = V[c.F]
-            assert np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() > 0
+            _assert_closed_outward(V, c.F)
             assert (V[:, 1] < T[:, 1].min() + cut - 1e-9).any() == (dome > 0)
         if c.F is not None:
             assert c.F.min() >= 0 and c.F.max() < len(c.V)
@@ -650,12 +655,9 @@ def test_headcut_scans_end_below_the_crown():
         assert HEADCUT_RANGE_M[0] <= cut <= HEADCUT_RANGE_M[1]
         assert V[:, 1].max() < T[:, 1].max() - cut + dome + 1e-9
         assert V[:, 1].max() > T[:, 1].max() - cut - 0.01  # cut there, not lower
-        if kind == "capped_headcut":  # closed: each edge in two faces, once each way
+        if kind == "capped_headcut":
             assert c.F is not None
-            und, dirs = _edge_uses(c.F)
-            assert np.all(und == 2) and np.all(dirs == 1)
-            P = V[c.F]
-            assert np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() > 0
+            _assert_closed_outward(V, c.F)
         if c.F is not None:
             assert c.F.min() >= 0 and c.F.max() < len(c.V)
         assert (c.F is None) == (kind == "cloud_headcut")
