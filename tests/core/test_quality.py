@@ -615,7 +615,7 @@ def test_a_scan_recording_the_head_twice_is_suspect_without_a_retry_unlike_a_hea
     from scipy.spatial import cKDTree
 
     from core.geometry import vertex_normals
-    from core.registration.quality import SPREAD_NOISE_M
+    from core.registration.quality import SPREAD_NOISE_M, spread_warning
 
     tpl = load_template()
     X = fitted.vertices
@@ -635,11 +635,15 @@ def test_a_scan_recording_the_head_twice_is_suspect_without_a_retry_unlike_a_hea
     assert h.quality == "suspect", q.reasons
     assert h.scan_to_fit_p95_m > THRESHOLDS["scan_to_fit_p95_m"].suspect
     assert q.parts["torso"].scan_spread_m < SPREAD_NOISE_M
+    warning = spread_warning(q)  # the report's warning of a thick scan
     if layers:
         assert h.scan_spread_m > 0.008
         assert "head" in q.unresolved and "head" not in q.weak_parts()
         assert any(r.startswith("head:") and "own spread" in r for r in q.reasons), q.reasons
+        assert warning is not None and "surface is thick" in warning and "head" in warning
+        assert "torso" not in warning
     else:
         assert h.scan_spread_m < SPREAD_NOISE_M
         assert "head" in q.weak_parts()
         assert not any("own spread" in r for r in q.reasons), q.reasons
+        assert warning is None
